@@ -1,0 +1,51 @@
+# egovid — two commands on a fresh machine:  make demo   and   make test
+SHELL := /bin/bash
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-stamp
+# System packages: ffmpeg (vid.stab peer for the stabiliser benchmark, libvpx), PostgreSQL server
+# (the dashcam catalogue's scale-out backend, tested against a real server).
+APT_PACKAGES := ffmpeg postgresql
+
+.PHONY: help install sysdeps demo test lint bench clean
+
+help:
+	@echo "make demo   create .venv, install egovid and run the main jobs end to end on generated data"
+	@echo "make test   install and run the linter and the test suite"
+	@echo "make bench  run the benchmarks in benchmarks/ (minutes)"
+
+sysdeps:
+	@missing=""; \
+	command -v ffmpeg >/dev/null || missing="$$missing ffmpeg"; \
+	ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1 || missing="$$missing postgresql"; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing system packages:$$missing"; \
+	  SUDO=$$([ "$$(id -u)" -eq 0 ] || echo sudo); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends $$missing; \
+	fi
+
+$(STAMP): pyproject.toml
+	@$(MAKE) --no-print-directory sysdeps
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/egovid demo --out demo-output
+
+lint: $(STAMP)
+	$(BIN)/ruff check src tests benchmarks experiments
+
+test: $(STAMP)
+	$(BIN)/ruff check src tests benchmarks experiments
+	$(BIN)/pytest -q
+
+bench: $(STAMP)
+	@for b in benchmarks/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) demo-output .pytest_cache build src/*.egg-info

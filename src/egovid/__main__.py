@@ -1,0 +1,5 @@
+"""``python -m egovid`` = the ``egovid`` command."""
+
+from egovid.cli import main
+
+main()

@@ -1,0 +1,84 @@
+"""Shared CLI plumbing: consoles, progress bars, option parsing helpers."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from egovid.errors import EgovidError
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+@contextlib.contextmanager
+def progress_bar(description: str, total: int | None) -> Iterator[Callable[[int, int | None], None]]:
+    """A Rich progress bar on stderr; yields ``update(done, total=None)``."""
+    progress = Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[rate]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=err_console,
+        transient=False,
+    )
+    with progress:
+        task = progress.add_task(description, total=total, rate="")
+        elapsed = {"t0": None}
+
+        def update(done: int, new_total: int | None = None) -> None:
+            import time
+
+            if elapsed["t0"] is None:
+                elapsed["t0"] = time.perf_counter()
+            dt = time.perf_counter() - elapsed["t0"]
+            rate = f"{done / dt:5.1f} fps" if dt > 0.5 else ""
+            kwargs = {"completed": done, "rate": rate}
+            if new_total is not None and new_total >= done:
+                kwargs["total"] = new_total
+            progress.update(task, **kwargs)
+
+        yield update
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"1280x720"`` → (1280, 720)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise EgovidError(f"size {text!r} is not WIDTHxHEIGHT", "write e.g. 1280x720") from None
+    if w < 16 or h < 16 or w % 2 or h % 2 or w > 7680 or h > 4320:
+        raise EgovidError(f"size {w}x{h} is not usable", "use even sizes between 16 and 7680x4320")
+    return w, h
+
+
+def parse_ints(text: str, name: str) -> tuple[int, ...]:
+    """``"1,5"`` → (1, 5)."""
+    try:
+        return tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise EgovidError(f"{name} {text!r} is not a comma-separated list of integers", "write e.g. 1,5") from None
+
+
+def check_output(path: Path, *, overwrite: bool = True) -> Path:
+    """Validate an output path before long work starts."""
+    if path.exists() and path.is_dir():
+        raise EgovidError(f"output {path} is a folder", "give a file name")
+    if not path.parent.exists():
+        raise EgovidError(f"output folder {path.parent} does not exist", "create it first")
+    if path.exists() and not overwrite:
+        raise EgovidError(f"output {path} exists", "remove it or pass --overwrite")
+    return path

@@ -1,0 +1,1 @@
+"""Input and output at the edges: video (PyAV), camera intrinsics, trajectory files."""

@@ -1,0 +1,429 @@
+"""Streaming video input and output on PyAV (FFmpeg).
+
+* :func:`probe` opens a video, checks that it decodes, and describes it (:class:`VideoInfo`).
+* :func:`iter_frames` decodes frame by frame (never the whole video), with the exact frame count,
+  presentation times in seconds, and the container's rotation flag applied, so frames come out in
+  display orientation (unlike ``cv2.VideoCapture``, egovid reports the flag and the camera
+  intrinsics are those of the rotated frame).
+* :class:`VideoWriter` encodes frames to a temporary file next to the target and renames it into
+  place only when everything succeeded, so an error or an interruption never leaves a
+  half-written video at the target path. It can copy the audio stream of a source video through.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import av
+import numpy as np
+
+from egovid.errors import EgovidError
+
+_FIX_VIDEO = "give a video file FFmpeg can decode (e.g. MP4/H.264, MKV, WebM)"
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """What a video is, as needed by the rest of egovid.
+
+    ``width`` and ``height`` are in display orientation (after the rotation flag), in pixels.
+    ``frame_count`` is the container's claim (or an estimate from the duration); the exact count
+    comes from decoding, see :func:`iter_frames`. ``rotation`` is the container's display rotation
+    in degrees counter-clockwise.
+    """
+
+    path: Path
+    width: int
+    height: int
+    fps: float
+    frame_count: int
+    duration: float
+    rotation: int
+    codec: str
+    has_audio: bool
+
+
+@dataclass
+class Frame:
+    """One decoded frame: ``image`` is HxWx3 BGR uint8 (or HxW grey), ``time`` in seconds."""
+
+    index: int
+    time: float
+    image: np.ndarray
+
+
+def _open(path: str | os.PathLike) -> av.container.InputContainer:
+    p = Path(path)
+    if not p.exists():
+        raise EgovidError(f"video not found: {p}", "check the path")
+    if p.is_dir():
+        raise EgovidError(f"{p} is a folder, not a video", _FIX_VIDEO)
+    if p.stat().st_size == 0:
+        raise EgovidError(f"video {p} is empty (0 bytes)", _FIX_VIDEO)
+    try:
+        container = av.open(str(p), mode="r")
+    except av.error.FFmpegError as exc:
+        raise EgovidError(f"{p} is not a readable video ({_ffmpeg_reason(exc)})", _FIX_VIDEO) from None
+    if not container.streams.video:
+        container.close()
+        raise EgovidError(f"{p} has no video stream", _FIX_VIDEO)
+    return container
+
+
+def _ffmpeg_reason(exc: Exception) -> str:
+    text = getattr(exc, "strerror", None) or str(exc)
+    return " ".join(str(text).split())[:120]
+
+
+def _rotation_of(frame: av.VideoFrame) -> int:
+    try:
+        rot = frame.rotation
+    except Exception:  # pragma: no cover - very old PyAV
+        return 0
+    return round(rot / 90.0) * 90 % 360 if rot else 0
+
+
+def _apply_rotation(image: np.ndarray, rotation: int) -> np.ndarray:
+    """Turn a decoded image into display orientation (``rotation`` degrees counter-clockwise)."""
+    k = (rotation // 90) % 4
+    return np.ascontiguousarray(np.rot90(image, k)) if k else image
+
+
+def probe(path: str | os.PathLike) -> VideoInfo:
+    """Open ``path``, decode its first frame and describe the video.
+
+    Raises :class:`EgovidError` for a missing, empty, corrupt or frameless file.
+    """
+    container = _open(path)
+    try:
+        stream = container.streams.video[0]
+        rate = stream.average_rate or stream.guessed_rate or stream.base_rate
+        fps = float(rate) if rate else 0.0
+        first = None
+        try:
+            first = next(iter(container.decode(stream)), None)
+        except av.error.FFmpegError as exc:
+            raise EgovidError(f"{path} does not decode ({_ffmpeg_reason(exc)})", _FIX_VIDEO) from None
+        if first is None:
+            raise EgovidError(f"video {path} has no frames", _FIX_VIDEO)
+        rotation = _rotation_of(first)
+        w, h = first.width, first.height
+        if rotation in (90, 270):
+            w, h = h, w
+        duration = 0.0
+        if stream.duration is not None and stream.time_base is not None:
+            duration = float(stream.duration * stream.time_base)
+        elif container.duration is not None:
+            duration = container.duration / av.time_base
+        frames = int(stream.frames or 0)
+        if frames <= 0 and duration > 0 and fps > 0:
+            frames = round(duration * fps)
+        if fps <= 0:
+            fps = 30.0
+        return VideoInfo(
+            path=Path(path),
+            width=w,
+            height=h,
+            fps=fps,
+            frame_count=max(frames, 1),
+            duration=duration,
+            rotation=rotation,
+            codec=stream.codec_context.name,
+            has_audio=bool(container.streams.audio),
+        )
+    finally:
+        container.close()
+
+
+def iter_frames(
+    path: str | os.PathLike,
+    *,
+    gray: bool = False,
+    scale: float | None = None,
+    max_frames: int | None = None,
+) -> Iterator[Frame]:
+    """Decode ``path`` frame by frame.
+
+    Parameters
+    ----------
+    gray:
+        Yield HxW uint8 luma instead of HxWx3 BGR (cheaper: no colour conversion).
+    scale:
+        Resize by this factor (0 < scale <= 1) inside FFmpeg's scaler, e.g. 0.5 for half size.
+    max_frames:
+        Stop after this many frames.
+
+    Frames come in display orientation; ``time`` is the presentation time in seconds from the
+    first frame. Raises :class:`EgovidError` if the video is unreadable or stops decoding midway.
+    """
+    if scale is not None and not (0.0 < scale <= 1.0):
+        raise EgovidError(f"scale {scale} must be in (0, 1]", "use e.g. 0.5 for half size")
+    container = _open(path)
+    try:
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        fmt = "gray" if gray else "bgr24"
+        t0: float | None = None
+        index = 0
+        try:
+            for frame in container.decode(stream):
+                rotation = _rotation_of(frame)
+                if scale is not None and scale != 1.0:
+                    sw = max(2, round(frame.width * scale))
+                    sh = max(2, round(frame.height * scale))
+                    img = frame.to_ndarray(format=fmt, width=sw, height=sh, interpolation="AREA")
+                else:
+                    img = frame.to_ndarray(format=fmt)
+                img = _apply_rotation(img, rotation)
+                t = float(frame.time) if frame.time is not None else index / float(stream.average_rate or 30)
+                if t0 is None:
+                    t0 = t
+                yield Frame(index, t - t0, img)
+                index += 1
+                if max_frames is not None and index >= max_frames:
+                    return
+        except av.error.FFmpegError as exc:
+            raise EgovidError(
+                f"{path} stops decoding at frame {index} ({_ffmpeg_reason(exc)})",
+                "the file is corrupt or truncated; re-export or repair it",
+            ) from None
+        if index == 0:
+            raise EgovidError(f"video {path} has no frames", _FIX_VIDEO)
+    finally:
+        container.close()
+
+
+def read_frames(path: str | os.PathLike, **kwargs) -> tuple[np.ndarray, np.ndarray]:
+    """Decode a short video completely: ``(images (N,H,W[,3]) uint8, times (N,) seconds)``.
+
+    Only for clips that fit in memory (tests, synthetic content); long videos use
+    :func:`iter_frames`.
+    """
+    frames = list(iter_frames(path, **kwargs))
+    return np.stack([f.image for f in frames]), np.array([f.time for f in frames])
+
+
+def count_frames(path: str | os.PathLike) -> int:
+    """Exact number of decodable frames (demuxes and decodes; no colour conversion)."""
+    container = _open(path)
+    try:
+        n = 0
+        for _ in container.decode(container.streams.video[0]):
+            n += 1
+        return n
+    except av.error.FFmpegError as exc:
+        raise EgovidError(f"{path} stops decoding at frame {n} ({_ffmpeg_reason(exc)})", _FIX_VIDEO) from None
+    finally:
+        container.close()
+
+
+def _fps_fraction(fps: float) -> Fraction:
+    common = {23.976: Fraction(24000, 1001), 29.97: Fraction(30000, 1001), 59.94: Fraction(60000, 1001)}
+    for k, v in common.items():
+        if abs(fps - k) < 1e-3:
+            return v
+    return Fraction(fps).limit_denominator(1001)
+
+
+class VideoWriter:
+    """Encode BGR frames to ``path``, atomically.
+
+    Frames go to a hidden temporary file in the target's folder; :meth:`close` (or leaving the
+    ``with`` block normally) renames it to ``path``. An exception inside the ``with`` block, or
+    :meth:`abort`, deletes the temporary file and leaves ``path`` untouched.
+
+    Parameters
+    ----------
+    codec:
+        ``libx264`` (default, MP4), ``ffv1`` (lossless, use an ``.mkv`` path), ``libvpx-vp9``...
+    crf:
+        Constant rate factor for x264/VP9 (lower = better quality).
+    audio_from:
+        A source video whose audio stream (if any) is copied into the output unchanged,
+        interleaved by timestamp.
+    metadata_from:
+        A source video whose container metadata (creation time, etc.) is copied.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        width: int,
+        height: int,
+        fps: float,
+        *,
+        codec: str = "libx264",
+        crf: int | None = 18,
+        preset: str | None = "veryfast",
+        pix_fmt: str | None = None,
+        threads: int = 0,
+        audio_from: str | os.PathLike | None = None,
+        metadata_from: str | os.PathLike | None = None,
+        options: dict[str, str] | None = None,
+    ) -> None:
+        self.path = Path(path)
+        if not self.path.parent.exists():
+            raise EgovidError(f"output folder {self.path.parent} does not exist", "create it first")
+        if fps <= 0 or not np.isfinite(fps):
+            raise EgovidError(f"frame rate {fps} is not positive", "give a frame rate such as 30")
+        self.width, self.height = int(width), int(height)
+        self.fps = float(fps)
+        self._tmp = self.path.with_name(f".{self.path.stem}.part-{os.getpid()}{self.path.suffix}")
+        self._container = av.open(str(self._tmp), mode="w")
+        rate = _fps_fraction(fps)
+        self._stream = self._container.add_stream(codec, rate=rate)
+        self._stream.width = self.width
+        self._stream.height = self.height
+        if pix_fmt is None:
+            pix_fmt = "bgr0" if codec == "ffv1" else "yuv420p"
+            if pix_fmt == "yuv420p" and (self.width % 2 or self.height % 2):
+                pix_fmt = "yuv444p"
+        self._stream.pix_fmt = pix_fmt
+        # A fine time base keeps variable frame timing exactly (1/rate would round it).
+        self._stream.time_base = Fraction(1, 90000)
+        self._stream.codec_context.time_base = Fraction(1, 90000)
+        opts: dict[str, str] = {}
+        if crf is not None and codec in ("libx264", "libx265", "libvpx-vp9", "libvpx"):
+            opts["crf"] = str(crf)
+        if preset is not None and codec in ("libx264", "libx265"):
+            opts["preset"] = preset
+        if codec == "libvpx-vp9":
+            opts.setdefault("b", "0")
+        if options:
+            opts.update(options)
+        self._stream.options = opts
+        if threads:
+            self._stream.codec_context.thread_count = threads
+        self._count = 0
+        self._last_pts = -1
+        self._audio = None
+        self._closed = False
+        if metadata_from is not None:
+            with contextlib.suppress(Exception), av.open(str(metadata_from)) as src:
+                for k, v in src.metadata.items():
+                    if k.lower() not in ("encoder", "major_brand", "minor_version", "compatible_brands"):
+                        self._container.metadata[k] = v
+        if audio_from is not None:
+            self._audio = _AudioPassthrough(audio_from, self._container)
+
+    @property
+    def frames_written(self) -> int:
+        """Number of frames written so far."""
+        return self._count
+
+    def write(self, image: np.ndarray, time: float | None = None) -> None:
+        """Append one HxWx3 BGR uint8 frame shown at ``time`` seconds (default: index / fps)."""
+        if image.shape[:2] != (self.height, self.width):
+            raise EgovidError(
+                f"frame of size {image.shape[1]}x{image.shape[0]} does not match the video's "
+                f"{self.width}x{self.height}",
+                "resize frames before writing",
+            )
+        if time is None:
+            time = self._count / self.fps
+        tb = self._stream.time_base
+        pts = round(time / tb)
+        if pts <= self._last_pts:
+            pts = self._last_pts + 1
+        self._last_pts = pts
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="bgr24")
+        frame.pts = pts
+        frame.time_base = tb
+        for packet in self._stream.encode(frame):
+            self._container.mux(packet)
+        self._count += 1
+        if self._audio is not None:
+            self._audio.feed_until(time)
+
+    def close(self) -> Path:
+        """Flush the encoder, finish the file and move it to ``path``."""
+        if self._closed:
+            return self.path
+        try:
+            for packet in self._stream.encode():
+                self._container.mux(packet)
+            if self._audio is not None:
+                self._audio.feed_until(float("inf"))
+                self._audio.close()
+            self._container.close()
+        except BaseException:
+            self.abort()
+            raise
+        self._closed = True
+        if self._count == 0:
+            self._tmp.unlink(missing_ok=True)
+            raise EgovidError("no frames were written", "the input produced no frames")
+        os.replace(self._tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        """Drop everything written; the target path is left as it was."""
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(Exception):
+            if self._audio is not None:
+                self._audio.close()
+        with contextlib.suppress(Exception):
+            self._container.close()
+        self._tmp.unlink(missing_ok=True)
+
+    def __enter__(self) -> VideoWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+class _AudioPassthrough:
+    """Copies the audio packets of a source file into an output container, interleaved by time."""
+
+    def __init__(self, source: str | os.PathLike, out: av.container.OutputContainer) -> None:
+        self._src = av.open(str(source))
+        self._in = self._src.streams.audio[0] if self._src.streams.audio else None
+        self._out_stream = out.add_stream_from_template(self._in) if self._in is not None else None
+        self._out = out
+        self._packets = self._src.demux(self._in) if self._in is not None else iter(())
+        self._pending = None
+        self._t0 = None
+        vs = self._src.streams.video
+        if vs and vs[0].start_time is not None and vs[0].time_base is not None:
+            self._t0 = float(vs[0].start_time * vs[0].time_base)
+
+    def feed_until(self, t: float) -> None:
+        if self._in is None:
+            return
+        while True:
+            pkt = self._pending
+            self._pending = None
+            if pkt is None:
+                try:
+                    pkt = next(self._packets)
+                except StopIteration:
+                    self._in = None
+                    return
+            if pkt.dts is None and pkt.pts is None:
+                continue
+            shift = round((self._t0 or 0.0) / pkt.time_base)
+            pts = pkt.pts if pkt.pts is not None else pkt.dts
+            if float(pts * pkt.time_base) - (self._t0 or 0.0) > t + 0.5:
+                self._pending = pkt
+                return
+            if shift:
+                if pkt.pts is not None:
+                    pkt.pts -= shift
+                if pkt.dts is not None:
+                    pkt.dts -= shift
+            pkt.stream = self._out_stream
+            self._out.mux(pkt)
+
+    def close(self) -> None:
+        self._src.close()

@@ -1,0 +1,45 @@
+"""Matplotlib figures (Agg backend, written to PNG), shared by the CLI and reports."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from egovid.io.files import atomic_path
+
+AXES = ("yaw", "pitch", "roll")
+
+
+def save(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
+    """Write ``fig`` to ``path`` atomically and close it."""
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=Path(path).suffix.lstrip(".") or "png")
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_angles(
+    path: str | os.PathLike,
+    times: np.ndarray,
+    curves: dict[str, np.ndarray],
+    title: str = "Camera rotation",
+) -> Path:
+    """Yaw, pitch and roll (degrees) against time for one or more labelled (N, 3) arrays."""
+    fig, axes = plt.subplots(3, 1, figsize=(9, 6.5), sharex=True)
+    for label, angles in curves.items():
+        for k, ax in enumerate(axes):
+            ax.plot(times[: len(angles)], angles[:, k], label=label, lw=1.2)
+    for k, ax in enumerate(axes):
+        ax.set_ylabel(f"{AXES[k]} (°)")
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time (s)")
+    axes[0].set_title(title)
+    if len(curves) > 1:
+        axes[0].legend(loc="upper right", fontsize=8)
+    return save(fig, path)

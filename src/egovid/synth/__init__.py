@@ -1,0 +1,1 @@
+"""Synthetic content with ground truth: scenes from bundled photos, camera motions, rendering."""

@@ -1,0 +1,42 @@
+"""Shared fixtures: small synthetic clips with ground truth, made once per test session."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from egovid.synth import motions
+from egovid.synth.fpv import render_fpv
+
+
+def run_cli(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    """Run ``python -m egovid ARGS`` and capture its output (text)."""
+    return subprocess.run(
+        [sys.executable, "-m", "egovid", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={"COLUMNS": "200", "PATH": "/usr/bin:/bin", "HOME": str(Path.home()), "TERM": "dumb"},
+    )
+
+
+@pytest.fixture(scope="session")
+def shaky_clip(tmp_path_factory) -> Path:
+    """640x360, 90 frames of running motion with roll, shake and sensor noise (H.264)."""
+    out = tmp_path_factory.mktemp("clips") / "shaky.mp4"
+    n = 90
+    angles = motions.running(n, 8.0, 2.0, 24.0, roll_amp=1.5) + motions.jitter(n, (0.1, 0.1, 0.1), seed=3)
+    render_fpv(out, angles, width=640, height=360, noise_std=2.0, seed=1)
+    return out
+
+
+@pytest.fixture(scope="session")
+def still_clip(tmp_path_factory) -> Path:
+    """320x180, 20 frames, camera not moving."""
+    out = tmp_path_factory.mktemp("clips") / "still.mp4"
+    render_fpv(out, np.zeros((20, 3)), width=320, height=180)
+    return out

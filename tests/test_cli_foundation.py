@@ -1,0 +1,61 @@
+"""The CLI as a user runs it: outputs exist and are readable; bad input gives one clear line."""
+
+import re
+
+import av
+import numpy as np
+import pytest
+
+from conftest import run_cli
+from egovid.io.trajectory import read_motion_csv, read_tum
+from egovid.io.video import VideoWriter
+
+
+def test_synth_then_motion_with_plot(tmp_path):
+    v = tmp_path / "clip.mp4"
+    r = run_cli("synth", "fpv", v, "--frames", "30", "--size", "320x180")
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "clip.gt.csv").exists() and (tmp_path / "clip.gt.tum").exists()
+    r = run_cli("fpv", "motion", v, "-o", tmp_path / "m.csv", "--plot", tmp_path / "m.png")
+    assert r.returncode == 0, r.stderr
+    m = read_motion_csv(tmp_path / "m.csv")
+    assert len(m) == 30
+    assert len(read_tum(tmp_path / "m.tum")) == 30
+    assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def _one_frame(path):
+    with VideoWriter(path, 64, 48, 30) as w:
+        w.write(np.zeros((48, 64, 3), np.uint8))
+
+
+def _no_frames(path):
+    c = av.open(str(path), "w")
+    s = c.add_stream("libx264", rate=30)
+    s.width, s.height, s.pix_fmt = 64, 48, "yuv420p"
+    c.start_encoding()
+    c.close()
+
+
+@pytest.mark.parametrize(
+    "make,extra,needle",
+    [
+        (None, (), "not found"),
+        (lambda p: p.write_text("hello\n" * 50), (), "not a readable video"),
+        (lambda p: p.write_bytes(b""), (), "empty"),
+        (_no_frames, (), "no video stream|no frames"),
+        (_one_frame, (), "at least 2"),
+        (_one_frame, ("--focal", "1"), "absurd"),
+        (_one_frame, ("--hfov", "200"), "out of range"),
+    ],
+)
+def test_motion_bad_input_is_one_line_and_nonzero(tmp_path, make, extra, needle):
+    v = tmp_path / "in.mp4"
+    if make is not None:
+        make(v)
+    r = run_cli("fpv", "motion", v, "-o", tmp_path / "m.csv", *extra)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1 and re.search(needle, lines[0]), r.stderr
+    assert not (tmp_path / "m.csv").exists()

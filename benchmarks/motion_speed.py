@@ -11,10 +11,11 @@ import os
 
 import numpy as np
 
-from _common import cache_dir, report, running_clip, timed
 from egovid.io.trajectory import Trajectory
 from egovid.io.video import iter_frames
 from egovid.motion.estimate import estimate_motion
+
+from _common import cache_dir, report, running_clip, timed
 
 
 def main() -> None:

@@ -6,9 +6,10 @@ import av
 import numpy as np
 import pytest
 
-from conftest import run_cli
 from egovid.io.trajectory import read_motion_csv, read_tum
 from egovid.io.video import VideoWriter
+
+from conftest import run_cli
 
 
 def test_synth_then_motion_with_plot(tmp_path):

@@ -43,3 +43,24 @@ def plot_angles(
     if len(curves) > 1:
         axes[0].legend(loc="upper right", fontsize=8)
     return save(fig, path)
+
+
+def plot_scores(path: str | os.PathLike, results: dict, title: str = "Viewing experience") -> Path:
+    """Per-window score curves: one panel per method (VE, SVE: per axis and combined; 2D-VE)."""
+    n = len(results)
+    fig, axes = plt.subplots(n, 1, figsize=(9, 2.8 * n), squeeze=False)
+    for ax, (name, res) in zip(axes[:, 0], results.items(), strict=True):
+        if name == "ve2d":
+            t = np.arange(len(res.segments)) / res.fps
+            ax.plot(t, res.segments, color="k", lw=1.4, label=f"2D-VE per segment (RMS {res.score:.3f})")
+        else:
+            for axis, curve in res.per_axis.items():
+                ax.plot(res.window_times, curve, lw=0.9, alpha=0.8, label=f"{axis} ({res.axis_scores[axis]:.3f})")
+            ax.plot(res.window_times, res.combined, color="k", lw=1.6, label=f"min over axes (RMS {res.score:.3f})")
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_ylabel(name.upper())
+        ax.grid(alpha=0.3)
+        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=7)
+    axes[-1, 0].set_xlabel("window start (s)")
+    axes[0, 0].set_title(title)
+    return save(fig, path)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from egovid.cli.common import check_output, console, parse_ints, progress_bar
+from egovid.cli.common import check_output, console, parse_ints, parse_size, progress_bar
 
 app = typer.Typer(
     help="First-person video: camera motion, viewing-experience scores, FPMI-preserving stabilisation.",
@@ -61,3 +61,125 @@ def motion(
         title = f"Camera rotation of {video.name}"
         plot_angles(plot, est.trajectory.times, {"estimated": est.trajectory.euler()}, title)
         console.print(f"plot         {plot}")
+
+
+@app.command("score")
+def score(
+    video: Path = typer.Argument(None, help="Input video (omit when --motion is given)."),
+    motion: Path = typer.Option(None, "--motion", help="Score this motion CSV (frame,time,yaw,pitch,roll) instead."),
+    method: str = typer.Option("all", help="ve | sve | ve2d | all (ve2d needs the video)."),
+    json_out: Path = typer.Option(None, "--json", help="Write scores and per-window curves as JSON."),
+    plot: Path = typer.Option(None, help="Write a PNG of the per-window curves."),
+    focal: float = typer.Option(None, help=FOCAL_HELP),
+    hfov: float = typer.Option(None, help=HFOV_HELP),
+    size: str = typer.Option(None, help="WIDTHxHEIGHT of the video a --motion CSV came from (default 1920x1080)."),
+    fps: float = typer.Option(None, help="Frame rate of a --motion CSV (default: from its time column)."),
+    d_over_f: float = typer.Option(4.0, help="Viewing distance over focal length (thesis: 4)."),
+    bias: float = typer.Option(None, help="Bias b in degrees (default 0.0183 for VE/SVE, 0.038 for 2D-VE)."),
+    mar: float = typer.Option(0.02, help="Minimum angular resolution of the eye, degrees."),
+    sve_variant: str = typer.Option(
+        "coverage", help="SVE loss term: coverage (default) | thesis (eq. 8.11 literally)."
+    ),
+    save_motion: Path = typer.Option(None, help="When scoring a video, also save its estimated motion CSV here."),
+) -> None:
+    """Score how watchable a first-person video is (thesis ch. 7–8).
+
+    VE is the expected fraction of frames a viewer can follow a target by smooth pursuit
+    (1 = perfectly watchable); SVE is its fast structural approximation; 2D-VE uses optical flow
+    instead of the 3D camera motion. Scores are per window of 10 frames (VE/SVE) or 30 frames
+    (2D-VE); the overall score is the RMS of the per-window minimum over yaw, pitch and roll.
+    """
+    import json
+
+    import numpy as np
+
+    from egovid.errors import EgovidError
+    from egovid.io.camera import resolve_intrinsics
+    from egovid.io.files import atomic_write_text
+    from egovid.io.trajectory import read_motion_csv, write_motion_csv
+    from egovid.io.video import probe
+    from egovid.perception.model import ViewingModel
+    from egovid.perception.score import score_angles
+
+    methods = ("ve", "sve", "ve2d") if method == "all" else (method,)
+    for m in methods:
+        if m not in ("ve", "sve", "ve2d"):
+            raise EgovidError(f"unknown method {m!r}", "choose ve, sve, ve2d or all")
+    if (video is None) == (motion is None):
+        raise EgovidError("give either a VIDEO or --motion CSV", "e.g. `egovid fpv score clip.mp4`")
+    for p in (json_out, plot, save_motion):
+        if p is not None:
+            check_output(p)
+    if motion is not None and "ve2d" in methods:
+        if method != "all":
+            raise EgovidError("2D-VE needs the video, not a motion CSV", "pass the VIDEO instead of --motion")
+        methods = ("ve", "sve")
+    results: dict = {}
+    traj = None
+    if video is not None:
+        info = probe(video)
+        intr = resolve_intrinsics(info.width, info.height, focal, hfov)
+        rate = info.fps
+    else:
+        w, h = parse_size(size) if size else (1920, 1080)
+        intr = resolve_intrinsics(w, h, focal, hfov)
+        traj = read_motion_csv(motion)
+        if fps is None:
+            dt = np.diff(traj.times)
+            if len(dt) == 0 or not np.all(dt > 0):
+                raise EgovidError(f"{motion} has no increasing time column", "pass --fps")
+            fps = float(1.0 / np.median(dt))
+        rate = fps
+    model3d = ViewingModel(d_over_f=d_over_f, mar_deg=mar, bias_deg=0.0183 if bias is None else bias)
+    model2d = ViewingModel.model_2d().with_(
+        d_over_f=d_over_f, mar_deg=mar, **({} if bias is None else {"bias_deg": bias})
+    )
+    if traj is None and any(m in ("ve", "sve") for m in methods):
+        from egovid.motion.estimate import estimate_motion
+
+        with progress_bar("motion", info.frame_count) as update:
+            traj = estimate_motion(video, intr, progress=update).trajectory
+        if save_motion is not None:
+            write_motion_csv(save_motion, traj)
+    for m in methods:
+        if m == "ve2d":
+            from egovid.perception.ve2d import ve2d_video
+
+            with progress_bar("2D-VE", info.frame_count) as update:
+                results[m] = ve2d_video(video, intr, model2d, progress=update)
+        else:
+            results[m] = score_angles(
+                traj.euler(), rate, intr.hfov_deg, intr.vfov_deg, model=model3d, method=m, sve_variant=sve_variant
+            )
+    from rich.table import Table
+
+    table = Table(title=f"Viewing experience of {(video or motion).name}")
+    table.add_column("method")
+    for col in ("overall", "yaw", "pitch", "roll"):
+        table.add_column(col, justify="right")
+    for m, r in results.items():
+        if m == "ve2d":
+            table.add_row("2D-VE", f"{r.score:.3f}", "", "", "")
+        else:
+            table.add_row(m.upper(), f"{r.score:.3f}", *(f"{r.axis_scores[a]:.3f}" for a in ("yaw", "pitch", "roll")))
+    console.print(table)
+    console.print("1 = a viewer can pursue targets in every frame; 0 = never.")
+    if json_out is not None:
+        doc = {
+            "input": str(video or motion),
+            "intrinsics": {
+                "width": intr.width,
+                "height": intr.height,
+                "focal_px": intr.focal,
+                "hfov_deg": intr.hfov_deg,
+                "vfov_deg": intr.vfov_deg,
+            },
+            "results": {m: r.to_dict() for m, r in results.items()},
+        }
+        atomic_write_text(json_out, json.dumps(doc, indent=1))
+        console.print(f"JSON  {json_out}")
+    if plot is not None:
+        from egovid.plots import plot_scores
+
+        plot_scores(plot, results, f"Viewing experience of {(video or motion).name}")
+        console.print(f"plot  {plot}")

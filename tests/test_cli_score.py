@@ -1,0 +1,49 @@
+"""`egovid fpv score` as a user runs it."""
+
+import json
+
+import numpy as np
+
+from egovid.io.trajectory import Trajectory, write_motion_csv
+from egovid.synth import motions
+
+from conftest import run_cli
+
+
+def test_score_video_all_methods_json_and_plot(shaky_clip, tmp_path):
+    r = run_cli("fpv", "score", shaky_clip, "--json", tmp_path / "s.json", "--plot", tmp_path / "s.png")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "s.json").read_text())
+    assert set(doc["results"]) == {"ve", "sve", "ve2d"}
+    ve = doc["results"]["ve"]
+    assert 0 <= ve["score"] <= 1 and set(ve["axis_scores"]) == {"yaw", "pitch", "roll"}
+    assert len(ve["combined"]) == 90 - 9 - 2  # K - N - 2 windows (eq. 8.13), N + 1 = 10
+    assert (tmp_path / "s.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_score_motion_csv(tmp_path):
+    a = motions.running(120, 1.0, 0.3, 24)
+    write_motion_csv(tmp_path / "m.csv", Trajectory.from_euler(np.arange(120) / 30.0, a))
+    r = run_cli("fpv", "score", "--motion", tmp_path / "m.csv", "--method", "ve", "--json", tmp_path / "o.json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "o.json").read_text())["results"]["ve"]["score"] > 0.5
+
+
+def _one_error(r, needle):
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1 and needle in lines[0], r.stderr
+
+
+def test_score_bad_motion_files(tmp_path):
+    p = tmp_path / "m.csv"
+    p.write_text("frame,time,yaw,pitch\n0,0,0,0\n")
+    _one_error(run_cli("fpv", "score", "--motion", p), "lacks column")
+    p.write_text("frame,time,yaw,pitch,roll\n" + "".join(f"{i},{i / 30},0,nan,0\n" for i in range(40)))
+    _one_error(run_cli("fpv", "score", "--motion", p), "NaN")
+    p.write_text("frame,time,yaw,pitch,roll\n" + "".join(f"{i},{i / 30},0,0,0\n" for i in range(6)))
+    _one_error(run_cli("fpv", "score", "--motion", p), "fewer than one scoring window")
+    _one_error(run_cli("fpv", "score", "--motion", p, "--method", "ve2d"), "needs the video")
+    _one_error(run_cli("fpv", "score"), "either a VIDEO or --motion")
+    _one_error(run_cli("fpv", "score", "--motion", p, "--bias", "0.5"), "bias")

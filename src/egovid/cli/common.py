@@ -82,3 +82,25 @@ def check_output(path: Path, *, overwrite: bool = True) -> Path:
     if path.exists() and not overwrite:
         raise EgovidError(f"output {path} exists", "remove it or pass --overwrite")
     return path
+
+
+@contextlib.contextmanager
+def staged_progress() -> Iterator[Callable[[str, int, int], None]]:
+    """One Rich progress display with a bar per stage; yields ``update(stage, done, total)``."""
+    progress = Progress(
+        TextColumn("[bold]{task.description:<9}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=err_console,
+    )
+    with progress:
+        tasks: dict[str, int] = {}
+
+        def update(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = progress.add_task(stage, total=total)
+            progress.update(tasks[stage], completed=done, total=max(total, done))
+
+        yield update

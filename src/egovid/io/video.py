@@ -20,6 +20,7 @@ from fractions import Fraction
 from pathlib import Path
 
 import av
+import cv2
 import numpy as np
 
 from egovid.errors import EgovidError
@@ -284,6 +285,7 @@ class VideoWriter:
             if pix_fmt == "yuv420p" and (self.width % 2 or self.height % 2):
                 pix_fmt = "yuv444p"
         self._stream.pix_fmt = pix_fmt
+        self._i420 = pix_fmt == "yuv420p"
         # A fine time base keeps variable frame timing exactly (1/rate would round it).
         self._stream.time_base = Fraction(1, 90000)
         self._stream.codec_context.time_base = Fraction(1, 90000)
@@ -331,7 +333,12 @@ class VideoWriter:
         if pts <= self._last_pts:
             pts = self._last_pts + 1
         self._last_pts = pts
-        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="bgr24")
+        if self._i420:
+            # OpenCV's BT.601 limited-range conversion matches swscale's to ±1 and is ~10x faster.
+            yuv = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2YUV_I420)
+            frame = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
+        else:
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="bgr24")
         frame.pts = pts
         frame.time_base = tb
         for packet in self._stream.encode(frame):

@@ -115,7 +115,7 @@ def _interval(kind: int, h: float, d1: float, d2: float, p: float, thr: float) -
             if f2 <= 0.0:
                 inside, found = x2, True
                 break
-            if hi - lo < 1e-9:
+            if hi - lo < 2e-5:
                 break
             if f1 < f2:
                 hi, x2, f2 = x2, x1, f1

@@ -20,9 +20,14 @@ Choices made where the thesis is silent or ambiguous (docs/fpv.md):
   between the two anchors), and "the anchor nearest to n" for the argmin of eq. 9.3. With
   ``k = 1, s = 1`` the eased segment is two parabolas — constant acceleration, the motion that
   keeps the eye's position error smallest — and ``s = 0`` is the zigzag itself;
-* eq. 9.1's neighbour is the anchor nearest in time (ties: the one with the smaller amplitude);
-  an anchor moves towards it by ``D · base``, and never more than half way to either adjacent
-  anchor, so anchors keep alternating and the edited motion keeps the original's frequency.
+* reduction moves an anchor towards the motion's *trend* (a low-pass of the motion as wide as
+  the anchor spacing), by a fraction ``D ∈ [0, 1]`` of the distance, and only in the direction
+  that shrinks its swing. Moving "towards the nearest neighbour by D times the base amplitude"
+  (eq. 9.1 read literally) is the same for a symmetric zigzag, but leaves the centre of the
+  oscillation free, and VE is blind to that centre: the optimum drifts away from where the
+  camera was looking and costs crop for nothing. Reducing towards the trend keeps the view
+  centred, keeps pans and slow turns (they *are* the trend) and lets the end anchors move too.
+  :func:`reduction_rates` still reports eq. 9.1's rates.
 """
 
 from __future__ import annotations
@@ -70,6 +75,15 @@ def find_anchors(theta: np.ndarray, threshold: float = 0.5) -> np.ndarray:
     return np.array(sorted(set(anchors)), dtype=np.int64)
 
 
+def noise_level(theta: np.ndarray) -> float:
+    """Robust standard deviation (degrees) of frame-to-frame jitter in a motion: the MAD of its
+    second difference, scaled for white noise (Var Δ² = 6 σ²)."""
+    d2 = np.diff(np.asarray(theta, dtype=float), 2)
+    if len(d2) < 3:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+
+
 def pure_fpm(anchors: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     """The zigzag through anchor ``values`` at frames ``anchors`` (linear in between), (n,)."""
     return np.interp(np.arange(n, dtype=float), anchors.astype(float), np.asarray(values, dtype=float))
@@ -110,49 +124,61 @@ def ease(anchors: np.ndarray, values: np.ndarray, k: np.ndarray, s: np.ndarray, 
 
 @dataclass
 class AnchorGeometry:
-    """Per-anchor quantities of eq. 9.1: the nearest neighbour in time, the base amplitude, the
-    direction an anchor moves when reduced, and the largest move that keeps alternation."""
+    """Per-anchor quantities: the nearest neighbour in time and base amplitude of eq. 9.1, the
+    intentional trend the anchor is reduced towards, and the direction that shrinks its swing."""
 
     anchors: np.ndarray
     values: np.ndarray
     neighbour: np.ndarray
     base: np.ndarray
+    trend: np.ndarray
     direction: np.ndarray
-    max_move: np.ndarray
-    movable: np.ndarray
+    room: np.ndarray
 
 
-def anchor_geometry(anchors: np.ndarray, values: np.ndarray) -> AnchorGeometry:
-    """Neighbours and base amplitudes of eq. 9.1 for anchors at frames ``anchors``."""
+def motion_trend(theta: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """The intentional course of a motion: a Gaussian low-pass whose width is the median spacing of
+    the anchors, so oscillations (head bob, shake) average out and pans and slow turns remain."""
+    from scipy.ndimage import gaussian_filter1d
+
+    spacing = float(np.median(np.diff(anchors))) if len(anchors) > 2 else len(theta)
+    sigma = float(np.clip(spacing, 3.0, 90.0))
+    return gaussian_filter1d(np.asarray(theta, dtype=float), sigma, mode="nearest")
+
+
+def anchor_geometry(anchors: np.ndarray, values: np.ndarray, trend: np.ndarray | None = None) -> AnchorGeometry:
+    """Neighbours, base amplitudes (eq. 9.1) and reduction targets for anchors at ``anchors``.
+
+    ``trend`` holds the intentional course at the anchor frames (default: the anchors' mean).
+    An anchor may only move towards the trend and only in the direction that shrinks its swing
+    against its neighbours; ``room`` is how far that is (degrees).
+    """
     A = np.asarray(anchors)
     v = np.asarray(values, dtype=float)
     T = len(A)
+    m = np.full(T, v.mean()) if trend is None else np.asarray(trend, dtype=float)
     neighbour = np.zeros(T, dtype=np.int64)
     base = np.zeros(T)
     direction = np.zeros(T)
-    max_move = np.zeros(T)
-    movable = np.zeros(T, dtype=bool)
     for i in range(T):
         cands = [j for j in (i - 1, i + 1) if 0 <= j < T]
         if not cands:
             continue
         dist = [abs(A[j] - A[i]) for j in cands]
         best = min(range(len(cands)), key=lambda c: (dist[c], abs(v[cands[c]] - v[i])))
-        j = cands[best]
-        neighbour[i] = j
-        base[i] = abs(v[i] - v[j])
-        if 0 < i < T - 1:
-            movable[i] = True
-            direction[i] = np.sign(v[j] - v[i])
-            max_move[i] = 0.5 * min(abs(v[i] - v[i - 1]), abs(v[i] - v[i + 1]))
-    return AnchorGeometry(A, v, neighbour, base, direction, max_move, movable)
+        neighbour[i] = cands[best]
+        base[i] = abs(v[i] - v[cands[best]])
+        # The swing shrinks when an anchor moves towards its neighbours' side.
+        direction[i] = np.sign(np.mean([v[j] for j in cands]) - v[i])
+    to_trend = m - v
+    room = np.where(np.sign(to_trend) == direction, np.abs(to_trend), 0.0)
+    return AnchorGeometry(A, v, neighbour, base, m, direction, room)
 
 
 def reduce_anchors(geom: AnchorGeometry, D: np.ndarray) -> np.ndarray:
-    """New anchor values after reduction rates ``D`` (eq. 9.1); end anchors never move."""
-    D = np.clip(np.asarray(D, dtype=float), 0.0, None)
-    move = np.minimum(D * geom.base, geom.max_move) * geom.movable
-    return geom.values + geom.direction * move
+    """New anchor values: each moves a fraction ``D`` (0–1) of the way to the trend."""
+    D = np.clip(np.asarray(D, dtype=float), 0.0, 1.0)
+    return geom.values + geom.direction * D * geom.room
 
 
 def reduction_rates(geom: AnchorGeometry, new_values: np.ndarray) -> np.ndarray:

@@ -1,0 +1,1 @@
+"""Metrics: masked inter-frame transformation fidelity (ITF, OITF, RITF), pose error, BD-rate."""

@@ -9,9 +9,10 @@ import time
 
 import av
 import numpy as np
-from conftest import run_cli
 
 from egovid.io.video import VideoWriter, count_frames, iter_frames
+
+from conftest import run_cli
 
 
 def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):

@@ -108,7 +108,7 @@ def pan_clip(tmp_path_factory):
 
 
 def test_large_intentional_pan_survives(pan_clip, tmp_path):
-    clip, truth = pan_clip
+    clip, _truth = pan_clip
     res = stabilize(clip, tmp_path / "out.mp4", borders="black")
     before = res.original[:, 0]
     after = res.edited[:, 0]
@@ -122,17 +122,54 @@ def test_large_intentional_pan_survives(pan_clip, tmp_path):
 
 def _vidstab(src, dst, tmp_path):
     trf = tmp_path / "t.trf"
-    subprocess.run(["ffmpeg", "-v", "error", "-y", "-i", str(src), "-vf", f"vidstabdetect=result={trf}", "-f",
-                    "null", "-"], check=True)
-    subprocess.run(["ffmpeg", "-v", "error", "-y", "-i", str(src), "-vf",
-                    f"vidstabtransform=input={trf}:optzoom=0:crop=black", "-c:v", "libx264", "-crf", "18",
-                    "-preset", "veryfast", str(dst)], check=True)
+    subprocess.run(
+        ["ffmpeg", "-v", "error", "-y", "-i", str(src), "-vf", f"vidstabdetect=result={trf}", "-f", "null", "-"],
+        check=True,
+    )
+    subprocess.run(
+        [
+            "ffmpeg",
+            "-v",
+            "error",
+            "-y",
+            "-i",
+            str(src),
+            "-vf",
+            f"vidstabtransform=input={trf}:optzoom=0:crop=black",
+            "-c:v",
+            "libx264",
+            "-crf",
+            "18",
+            "-preset",
+            "veryfast",
+            str(dst),
+        ],
+        check=True,
+    )
     white = tmp_path / "white.mp4"
     info = probe(src)
-    subprocess.run(["ffmpeg", "-v", "error", "-y", "-f", "lavfi", "-i",
-                    f"color=white:s={info.width}x{info.height}:r=30", "-frames:v", str(count_frames(src)),
-                    "-vf", f"vidstabtransform=input={trf}:optzoom=0:crop=black", "-c:v", "libx264", "-crf", "0",
-                    str(white)], check=True)
+    subprocess.run(
+        [
+            "ffmpeg",
+            "-v",
+            "error",
+            "-y",
+            "-f",
+            "lavfi",
+            "-i",
+            f"color=white:s={info.width}x{info.height}:r=30",
+            "-frames:v",
+            str(count_frames(src)),
+            "-vf",
+            f"vidstabtransform=input={trf}:optzoom=0:crop=black",
+            "-c:v",
+            "libx264",
+            "-crf",
+            "0",
+            str(white),
+        ],
+        check=True,
+    )
     masks = [f.image > 128 for f in iter_frames(white, gray=True)]
     return masks
 

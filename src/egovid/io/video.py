@@ -47,6 +47,7 @@ class VideoInfo:
     rotation: int
     codec: str
     has_audio: bool
+    creation_time: str | None = None
 
 
 @dataclass
@@ -95,6 +96,25 @@ def _apply_rotation(image: np.ndarray, rotation: int) -> np.ndarray:
     return np.ascontiguousarray(np.rot90(image, k)) if k else image
 
 
+def _rotate_i420(img: np.ndarray, rotation: int) -> np.ndarray:
+    k = (rotation // 90) % 4
+    if not k:
+        return img
+    h = img.shape[0] * 2 // 3
+    w = img.shape[1]
+    flat = img.reshape(-1)
+    y = flat[: w * h].reshape(h, w)
+    u = flat[w * h : w * h + (w // 2) * (h // 2)].reshape(h // 2, w // 2)
+    v = flat[w * h + (w // 2) * (h // 2) :].reshape(h // 2, w // 2)
+    y, u, v = (np.rot90(p, k) for p in (y, u, v))
+    out = np.empty((y.shape[0] * 3 // 2, y.shape[1]), np.uint8)
+    o = out.reshape(-1)
+    o[: y.size] = y.ravel()
+    o[y.size : y.size + u.size] = u.ravel()
+    o[y.size + u.size :] = v.ravel()
+    return out
+
+
 def probe(path: str | os.PathLike) -> VideoInfo:
     """Open ``path``, decode its first frame and describe the video.
 
@@ -136,6 +156,7 @@ def probe(path: str | os.PathLike) -> VideoInfo:
             rotation=rotation,
             codec=stream.codec_context.name,
             has_audio=bool(container.streams.audio),
+            creation_time=container.metadata.get("creation_time") or stream.metadata.get("creation_time"),
         )
     finally:
         container.close()
@@ -145,6 +166,7 @@ def iter_frames(
     path: str | os.PathLike,
     *,
     gray: bool = False,
+    i420: bool = False,
     scale: float | None = None,
     max_frames: int | None = None,
 ) -> Iterator[Frame]:
@@ -154,6 +176,9 @@ def iter_frames(
     ----------
     gray:
         Yield HxW uint8 luma instead of HxWx3 BGR (cheaper: no colour conversion).
+    i420:
+        Yield the decoded YUV 4:2:0 picture as one (H*3/2, W) uint8 array (Y, then U, then V),
+        without any colour conversion (for re-encoding bit-exactly).
     scale:
         Resize by this factor (0 < scale <= 1) inside FFmpeg's scaler, e.g. 0.5 for half size.
     max_frames:
@@ -168,7 +193,7 @@ def iter_frames(
     try:
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"
-        fmt = "gray" if gray else "bgr24"
+        fmt = "yuv420p" if i420 else ("gray" if gray else "bgr24")
         t0: float | None = None
         index = 0
         try:
@@ -180,7 +205,7 @@ def iter_frames(
                     img = frame.to_ndarray(format=fmt, width=sw, height=sh, interpolation="AREA")
                 else:
                     img = frame.to_ndarray(format=fmt)
-                img = _apply_rotation(img, rotation)
+                img = _rotate_i420(img, rotation) if i420 else _apply_rotation(img, rotation)
                 t = float(frame.time) if frame.time is not None else index / float(stream.average_rate or 30)
                 if t0 is None:
                     t0 = t
@@ -346,6 +371,23 @@ class VideoWriter:
         self._count += 1
         if self._audio is not None:
             self._audio.feed_until(time)
+
+    def write_i420(self, frame: np.ndarray, time: float | None = None) -> None:
+        """Append one I420 frame ((h*3/2, w) uint8, as decoded) without any colour conversion, so a
+        lossless codec (FFV1, or x264 at ``options={'qp': '0'}``) stores it bit for bit."""
+        if frame.shape != (self.height * 3 // 2, self.width) or not self._i420:
+            raise EgovidError("I420 frames need a yuv420p writer of the same size", "check the frame size")
+        if time is None:
+            time = self._count / self.fps
+        tb = self._stream.time_base
+        pts = max(round(time / tb), self._last_pts + 1)
+        self._last_pts = pts
+        vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="yuv420p")
+        vf.pts = pts
+        vf.time_base = tb
+        for packet in self._stream.encode(vf):
+            self._container.mux(packet)
+        self._count += 1
 
     def close(self) -> Path:
         """Flush the encoder, finish the file and move it to ``path``."""

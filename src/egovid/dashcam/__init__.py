@@ -1,0 +1,1 @@
+"""Route-aware dashcam archive with joint compression (thesis Part III)."""

@@ -1,0 +1,203 @@
+"""The dashcam archive end to end, as a user runs it: three drives around a junction, joint
+compression, path splitting, bit-exact extraction in a fresh process, crash safety and bad input."""
+
+import itertools
+import json
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from egovid.dashcam import codec
+from egovid.dashcam.archive import Archive, IngestOptions
+from egovid.io.video import iter_frames
+from egovid.synth.drive import DriveSpec, Light, render_drive
+
+from conftest import run_cli
+
+W, H = 320, 180
+
+
+@pytest.fixture(scope="module")
+def drives(tmp_path_factory):
+    """a, b: the same stretch of the main road (b slower, with a stop); c: turns off onto the side
+    street half-way; all at noon; a GPS log as GPX, NMEA and CSV respectively."""
+    d = tmp_path_factory.mktemp("drives")
+    noon = Light.preset("noon")
+    specs = {
+        "a": (DriveSpec(legs=[("main", 380.0, 480.0)], cruise=11.0, seed=1, light=noon), "gpx"),
+        "b": (DriveSpec(legs=[("main", 380.0, 480.0)], cruise=9.0, stops=[(40.0, 1.5)], seed=2, light=noon), "nmea"),
+        "c": (DriveSpec(legs=[("main", 380.0, 445.0), ("side", 5.0, 60.0)], cruise=10.0, seed=3, light=noon), "csv"),
+    }
+    out = {}
+    for name, (spec, fmt) in specs.items():
+        video, gps, truth = render_drive(spec, d / f"{name}.mp4", width=W, height=H, gps_format=fmt)
+        out[name] = (video, gps, truth)
+    return out
+
+
+@pytest.fixture(scope="module")
+def archive(drives, tmp_path_factory):
+    root = tmp_path_factory.mktemp("arch") / "archive"
+    r = run_cli("dashcam", "init", root)
+    assert r.returncode == 0, r.stderr
+    reports = {}
+    for name in ("a", "b", "c"):
+        video, gps, _ = drives[name]
+        r = run_cli("dashcam", "ingest", root, video, "--gps", gps, "--json", root.parent / f"{name}.json")
+        assert r.returncode == 0, r.stderr
+        reports[name] = json.loads((root.parent / f"{name}.json").read_text())
+    return root, reports
+
+
+def test_first_drive_is_a_root_and_later_ones_are_joint(archive):
+    _, rep = archive
+    assert [p["mode"] for p in rep["a"]["pieces"]] == ["intra"]
+    assert rep["a"]["new_paths"] == [1]
+    b = rep["b"]["pieces"]
+    assert [p["mode"] for p in b] == ["joint"] and b[0]["ref_drive"] == "a"
+    assert b[0]["stopped_frames"] > 20  # the 1.5 s stop
+    assert b[0]["saving"] > 0.0  # smaller than standalone at the same quantiser
+
+
+def test_drive_leaving_the_path_splits_it(archive):
+    root, rep = archive
+    c = rep["c"]
+    assert c["split_paths"] == [1]
+    modes = [(p["mode"], p["ref_drive"]) for p in c["pieces"]]
+    assert modes[0][0] == "joint" and modes[0][1] in ("a", "b")
+    assert modes[-1] == ("intra", None)  # the side street is new
+    ar = Archive(root)
+    paths = {p.id for p in ar.catalogue.paths()}
+    assert len(paths) >= 3
+    # Drive a now lies on two paths (before and after the junction), its frames intact.
+    seq_a = ar.catalogue.sequences(drive_id=1)
+    assert len({s.path_id for s in seq_a}) == 2
+    assert seq_a[0].frame_start == 0 and seq_a[-1].frame_end == ar.catalogue.drive("a").frames
+    assert all(x.frame_end == y.frame_start for x, y in itertools.pairwise(seq_a))
+
+
+def test_extract_in_a_fresh_process_is_bit_exact(archive, drives, tmp_path):
+    root, _ = archive
+    out = tmp_path / "b.mkv"
+    r = run_cli("dashcam", "extract", root, "b", "-o", out)
+    assert r.returncode == 0, r.stderr
+    ar = Archive(root)
+    segs = ar.catalogue.segments(ar.catalogue.drive("b").id)
+    frames = [f.image for f in iter_frames(out, i420=True)]
+    assert len(frames) == ar.catalogue.drive("b").frames
+    import hashlib
+
+    for seg in segs:  # the extracted pictures are the encoder's reconstruction, bit for bit
+        h = hashlib.sha256()
+        for f in frames[seg.frame_start : seg.frame_end]:
+            codec.digest_update(h, f)
+        assert h.hexdigest() == seg.params["recon_digest"]
+    # ... and close to the source drive.
+    src = [f.image for f in iter_frames(drives["b"][0], i420=True)]
+    mse = np.mean([np.mean((a[:H].astype(float) - b[:H]) ** 2) for a, b in zip(frames, src, strict=True)])
+    assert 10 * np.log10(255**2 / mse) > 30.0
+
+
+def test_list_show_report(archive):
+    root, _ = archive
+    r = run_cli("dashcam", "list", root)
+    assert r.returncode == 0 and "joint" in r.stdout and "intra" in r.stdout
+    r = run_cli("dashcam", "show", root, "c")
+    assert r.returncode == 0 and "segment" in r.stdout
+    r = run_cli("dashcam", "report", root, "--json", root.parent / "rep.json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((root.parent / "rep.json").read_text())
+    assert {d["drive"] for d in rep["drives"]} == {"a", "b", "c"}
+    assert sum(p["frames"] for p in rep["paths"]) == sum(d["frames"] for d in rep["drives"])
+
+
+def _error(r, needle):
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1 and needle in lines[0], r.stderr
+
+
+def _state(root):
+    db = sqlite3.connect(str(root / "catalogue.sqlite"))
+    try:
+        return [
+            db.execute(f"SELECT count(*) FROM {t}").fetchone()[0] for t in ("drives", "paths", "sequences", "segments")
+        ]
+    finally:
+        db.close()
+
+
+def test_bad_input_changes_nothing(archive, drives, tmp_path):
+    root, _ = archive
+    before = _state(root)
+    video_a, gps_a, _ = drives["a"]
+    # GPS of another time: the same track shifted by a day does not overlap the video.
+    shifted = tmp_path / "late.csv"
+    lines = drives["c"][1].read_text().splitlines()
+    import datetime as dt
+
+    out = [lines[0]]
+    for ln in lines[1:]:
+        t, rest = ln.split(",", 1)
+        out.append((dt.datetime.fromisoformat(t) + dt.timedelta(days=1)).isoformat() + "," + rest)
+    shifted.write_text("\n".join(out) + "\n")
+    _error(run_cli("dashcam", "ingest", root, video_a, "--gps", shifted, "--name", "x"), "covers 0%")
+    _error(run_cli("dashcam", "ingest", root, video_a, "--gps", video_a, "--name", "x"), "binary")
+    broken = tmp_path / "broken.mp4"
+    broken.write_bytes(video_a.read_bytes()[:2000])
+    _error(run_cli("dashcam", "ingest", root, broken, "--gps", gps_a, "--name", "x"), "")
+    _error(run_cli("dashcam", "ingest", root, video_a, "--gps", gps_a), "already in the archive")
+    _error(run_cli("dashcam", "extract", root, "nobody", "-o", tmp_path / "x.mkv"), "no drive")
+    _error(run_cli("dashcam", "ingest", tmp_path, video_a, "--gps", gps_a), "not an egovid archive")
+    assert _state(root) == before
+
+
+def test_kill_during_ingest_leaves_archive_consistent(archive, drives, tmp_path):
+    root, _ = archive
+    before = _state(root)
+    video, gps, _ = drives["b"]
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "egovid",
+            "dashcam",
+            "ingest",
+            str(root),
+            str(video),
+            "--gps",
+            str(gps),
+            "--name",
+            "killed",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    # Wait until the ingest has written a new bitstream (it then holds the catalogue's write
+    # transaction, still uncommitted), then kill -9.
+    blobs_before = {p.name for p in (root / "blobs").rglob("*") if p.is_file()}
+    t0 = time.time()
+    while time.time() - t0 < 120 and proc.poll() is None:
+        if {p.name for p in (root / "blobs").rglob("*") if p.is_file()} - blobs_before:
+            break
+        time.sleep(0.01)
+    assert proc.poll() is None, "the ingest finished before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert _state(root) == before
+    db = sqlite3.connect(str(root / "catalogue.sqlite"))
+    assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    db.close()
+    # Earlier drives are still extractable.
+    ar = Archive(root)
+    ar.extract("a", tmp_path / "a.mkv")
+    assert sum(1 for _ in iter_frames(tmp_path / "a.mkv")) == ar.catalogue.drive("a").frames
+    # And the same drive can be ingested afterwards.
+    rep = ar.ingest(video, gps, IngestOptions(name="after-crash", measure_savings=False))
+    assert rep.pieces[0].mode == "joint"

@@ -1,0 +1,230 @@
+"""Dashcam archive parts on hand-made or exactly known inputs: GPS readers, path matching and
+splitting, catalogue transactions, illumination features, stops, the VP9 reference injection,
+SeqSLAM."""
+
+import datetime as dt
+
+import numpy as np
+import pytest
+
+from egovid.dashcam import codec, vpx
+from egovid.dashcam.catalogue import SqliteCatalogue
+from egovid.dashcam.gps import project, read_track
+from egovid.dashcam.illumination import best_match, frame_features, rank_scores
+from egovid.dashcam.paths import match_path, resample, split_drive, split_points
+from egovid.dashcam.seqslam import align_seqslam, descriptor
+from egovid.dashcam.stops import stopped_frames
+from egovid.errors import EgovidError
+
+
+def _nmea(body):
+    cs = 0
+    for ch in body:
+        cs ^= ord(ch)
+    return f"${body}*{cs:02X}"
+
+
+def test_nmea_checksums_void_and_dead_reckoning_fixes_are_dropped(tmp_path):
+    lines = [
+        _nmea("GPRMC,080000.00,A,4025.4220,N,08655.2720,W,20.0,90.0,040526,,,A"),
+        _nmea("GPRMC,080001.00,A,4025.4220,N,08655.2600,W,20.0,90.0,040526,,,A"),
+        _nmea("GPRMC,080002.00,V,4025.4220,N,08655.2500,W,20.0,90.0,040526,,,N"),  # void
+        _nmea("GPRMC,080003.00,A,4025.4220,N,08655.2400,W,20.0,90.0,040526,,,E"),  # dead reckoning
+        _nmea("GPRMC,080004.00,A,4025.4220,N,08655.2300,W,20.0,90.0,040526,,,A")[:-2] + "00",  # bad checksum
+        _nmea("GPRMC,080005.00,A,4025.4220,N,08655.2200,W,20.0,90.0,040526,,,A"),
+        _nmea("GPGGA,080006.00,4025.4220,N,08655.2100,W,0,00,99.9,190.0,M,-33.0,M,,"),  # no fix
+        _nmea("GPGGA,080007.00,4025.4220,N,08655.2000,W,1,09,0.9,190.0,M,-33.0,M,,"),
+    ]
+    p = tmp_path / "log.nmea"
+    p.write_text("\r\n".join(lines) + "\r\n")
+    g = read_track(p)
+    t0 = dt.datetime(2026, 5, 4, 8, 0, 0, tzinfo=dt.UTC).timestamp()
+    np.testing.assert_allclose(g.t - t0, [0, 1, 5, 7])
+    assert g.dropped == {"checksum": 1, "void or estimated": 3, "unparsable": 0}
+    assert g.lat[0] == pytest.approx(40 + 25.422 / 60)
+    assert g.lon[0] == pytest.approx(-(86 + 55.272 / 60))
+    assert g.speed[0] == pytest.approx(20 * 0.514444)  # knots
+    assert g.gaps(3.0) == [(t0 + 1, t0 + 5)]
+
+
+def test_gpx_and_csv_and_derived_speed(tmp_path):
+    t0 = 1777881600.0
+    # 10 m/s due east for 20 s, no speed column: derived from positions.
+    xs = np.arange(21) * 10.0
+    lat, lon = 40.0 + 0 * xs, -86.0 + np.degrees(xs / (6371008.8 * np.cos(np.radians(40.0))))
+    rows = "".join(f"{t0 + i},{la:.8f},{lo:.8f}\n" for i, (la, lo) in enumerate(zip(lat, lon, strict=True)))
+    (tmp_path / "t.csv").write_text("time,lat,lon\n" + rows)
+    g = read_track(tmp_path / "t.csv")
+    assert np.median(g.speed) == pytest.approx(10.0, rel=0.02)
+    assert np.median(g.bearing) == pytest.approx(90.0, abs=1.0)
+    xy = g.xy((40.0, -86.0))
+    assert xy[-1, 0] == pytest.approx(200.0, abs=0.05)
+    import gpxpy.gpx
+
+    gpx = gpxpy.gpx.GPX()
+    trk, seg = gpxpy.gpx.GPXTrack(), gpxpy.gpx.GPXTrackSegment()
+    gpx.tracks.append(trk)
+    trk.segments.append(seg)
+    for i, (la, lo) in enumerate(zip(lat, lon, strict=True)):
+        seg.points.append(gpxpy.gpx.GPXTrackPoint(la, lo, time=dt.datetime.fromtimestamp(t0 + i, dt.UTC)))
+    (tmp_path / "t.gpx").write_text(gpx.to_xml())
+    g2 = read_track(tmp_path / "t.gpx")
+    np.testing.assert_allclose(g2.t, g.t)
+    np.testing.assert_allclose(g2.lat, g.lat, atol=1e-7)
+
+
+@pytest.mark.parametrize(
+    "content,needle",
+    [
+        (b"\x00\x01\x02garbage", "binary"),
+        (b'{"type": "FeatureCollection"}', "not a GPS track"),
+        (b"time,x,y\n1,2,3\n", "not a GPS track"),
+        (b"time,lat,lon\n2026-05-04T08:00:00Z,40,-86\n", "at least 2"),
+        (b"time,lat,lon\nnoon,40,-86\n", "neither ISO"),
+        (b"", "empty"),
+    ],
+)
+def test_wrong_gps_files_give_clear_errors(tmp_path, content, needle):
+    p = tmp_path / "g.txt"
+    p.write_bytes(content)
+    with pytest.raises(EgovidError, match=needle):
+        read_track(p)
+
+
+def _line(n, y=0.0, start=0.0):
+    return np.stack([start + np.arange(n) * 5.0, np.full(n, y)], axis=1)
+
+
+def test_drive_along_a_path_and_one_that_leaves_it():
+    path = _line(41)  # 200 m eastwards
+    # Drive 1: the whole path, eastwards at ~10 m/s with 3 m of noise.
+    rng = np.random.default_rng(0)
+    xy = np.stack([np.arange(21) * 10.0, np.zeros(21)], 1) + rng.normal(0, 3, (21, 2))
+    bearing, speed = np.full(21, 90.0), np.full(21, 10.0)
+    m = match_path(7, path, xy, bearing, speed)
+    assert m.indicator.all()
+    assert np.all(np.diff(m.closest) >= 0)
+    pieces = split_drive([m], 21)
+    assert [(p.start, p.end, p.path_id) for p in pieces] == [(0, 21, 7)]
+    # Drive 2: joins at 100 m, leaves northwards at 150 m.
+    xy2 = np.concatenate(
+        [
+            np.stack([100 + np.arange(6) * 10.0, np.zeros(6)], 1),
+            np.stack([np.full(10, 150.0), 10 + np.arange(10) * 10.0], 1),
+        ]
+    )
+    b2 = np.concatenate([np.full(6, 90.0), np.zeros(10)])
+    m2 = match_path(7, path, xy2, b2, np.full(16, 10.0))
+    pieces = split_drive([m2], 16)
+    assert pieces[0].path_id == 7 and pieces[-1].path_id is None
+    on = pieces[0]
+    assert split_points(on.first_point, on.last_point, len(path)) == [on.first_point, on.last_point + 1]
+    assert on.first_point == 20 and 29 <= on.last_point <= 31
+    # The other direction is a different path.
+    m3 = match_path(7, path, xy[::-1], np.full(21, 270.0), speed)
+    assert not m3.indicator.any()
+
+
+def test_resample_keeps_ends_and_spacing():
+    pts = np.array([[0.0, 0.0], [0.0, 12.0], [9.0, 12.0]])
+    r = resample(pts, 5.0)
+    np.testing.assert_allclose(r[0], pts[0])
+    np.testing.assert_allclose(r[-1], pts[-1])
+    assert len(r) == 6  # 21 m of polyline every <= 5 m
+    chords = np.hypot(*np.diff(r, axis=0).T)
+    assert np.all(chords <= 21.0 / 5 + 1e-9) and np.all(chords > 2.5)
+
+
+def test_catalogue_transaction_rolls_back_and_rtree_finds_paths(tmp_path):
+    cat = SqliteCatalogue(tmp_path / "c.sqlite", create=True)
+    with cat.transaction():
+        d = cat.add_drive("a", "a.mp4", "a.gpx", 0.0, 30.0, 64, 48, 10)
+        cat.add_path(_line(100), d)
+    with pytest.raises(RuntimeError), cat.transaction():
+        cat.add_drive("b", "b.mp4", "b.gpx", 0.0, 30.0, 64, 48, 10)
+        cat.add_path(_line(5, y=1000.0), None)
+        raise RuntimeError("crash in the middle of an ingest")
+    assert [x.name for x in cat.drives()] == ["a"]
+    assert len(cat.paths()) == 1
+    assert cat.paths_near(240, -1, 260, 1) == [1]
+    assert cat.paths_near(240, 900, 260, 1100) == []
+    assert project([40.0], [-86.0], (40.0, -86.0)).tolist() == [[0.0, 0.0]]
+
+
+def test_tamura_contrast_and_rank_scores_by_hand():
+    # Two grey levels, half each: sigma = 50, kurtosis = 1, so C = 50 in every quadrant.
+    img = np.zeros((8, 8), np.uint8)
+    img[:, ::2] = 100
+    f = frame_features(img)
+    np.testing.assert_allclose(f, [50, 50] * 4)
+    new = np.array([100.0, 40] * 4)
+    cands = {
+        1: np.array([100.0, 40] * 4),
+        2: np.array([90.0, 40] * 4),
+        3: np.array([100.0, 40, 100, 40, 100, 40, 10, 5]),
+    }
+    scores = rank_scores(new, cands)
+    # Candidate 1 is best in every quadrant (3 points x 4); 3 ties with 1 in three quadrants.
+    assert scores[1] == 12 and scores[2] < scores[3]
+    assert best_match(new, cands) == 1
+    assert best_match(new, {9: np.array([250.0, 5] * 4)}) is None  # no usable light: a root
+
+
+def test_stops_need_low_speed_no_turning_and_duration():
+    fps = 10.0
+    speed = np.array([5.0] * 10 + [0.1] * 10 + [5.0] * 5 + [0.1] * 2 + [5.0] * 5)
+    bearing = np.zeros(len(speed))
+    s = stopped_frames(speed, bearing, fps)
+    assert s[10:20].all() and not s[:10].any() and not s[25:27].any()
+    turning = np.cumsum(np.where(speed < 1, 3.0, 0.0))  # 30°/s while slow: still aligned
+    assert not stopped_frames(speed, turning, fps).any()
+
+
+def _i420(rng, w, h, base=None, shift=0):
+    if base is None:
+        base = rng.integers(0, 256, (h * 3 // 2, w + 8), dtype=np.uint8)
+    return np.ascontiguousarray(base[:, shift : shift + w]), base
+
+
+@pytest.mark.parametrize("kind", ["none", "gain", "similarity"])
+def test_injected_reference_decodes_bit_exactly(kind):
+    rng = np.random.default_rng(1)
+    w, h = 64, 48
+    _ref, base = _i420(rng, w, h)
+    frames = [np.roll(_i420(rng, w, h, base, k % 4)[0], 1, axis=1) for k in range(5)]
+    refs = [_i420(rng, w, h, base, k % 4)[0] for k in range(5)]
+    params = {"none": None, "gain": [70, -300], "similarity": [4096, 10, 30, -10, 4096, -20]}[kind]
+
+    def baseline(k):
+        return codec.apply_alignment(vpx.pad_i420(refs[k], w, h), w, h, kind, params)
+
+    recon = []
+    enc = codec.encode_segment(iter(frames), w, h, vpx.EncoderSettings(q=30, speed=6), baseline, keep_recon=recon)
+    decoded = list(codec.decode_segment(enc.blob, baseline))
+    assert len(decoded) == 5
+    assert all(np.array_equal(a, b) for a, b in zip(decoded, recon, strict=True))
+    # Without the baseline the pictures are wrong: the reference really is used.
+    blind = list(codec.decode_segment(enc.blob))
+    assert not all(np.array_equal(a, b) for a, b in zip(blind, recon, strict=True))
+
+
+def test_damaged_blob_is_refused():
+    rng = np.random.default_rng(2)
+    frames = [_i420(rng, 32, 32)[0] for _ in range(2)]
+    blob = codec.encode_segment(iter(frames), 32, 32, vpx.EncoderSettings(q=40, speed=8)).blob
+    with pytest.raises(EgovidError, match="truncated"):
+        codec.unpack(blob[:-5])
+    with pytest.raises(EgovidError, match="format"):
+        codec.unpack(b"XXXX" + blob[4:])
+
+
+def test_seqslam_recovers_a_shifted_sequence():
+    rng = np.random.default_rng(3)
+    ref = [np.clip(rng.normal(128, 40, (72, 128)), 0, 255).astype(np.uint8) for _ in range(80)]
+    ref = [
+        np.ascontiguousarray(np.roll(ref[0], 3 * k, axis=1) * 0.5 + r * 0.5).astype(np.uint8) for k, r in enumerate(ref)
+    ]
+    new = ref[10:60]
+    prior = np.arange(10, 60) + rng.normal(0, 5, 50)
+    res = align_seqslam(np.stack([descriptor(g) for g in new]), np.stack([descriptor(g) for g in ref]), prior)
+    assert np.mean(res.refmap[10:] == np.arange(20, 60)) > 0.95

@@ -127,7 +127,7 @@ def align_orb(
             if ratio_prev and ratio_prev > 0.05:
                 mean_step *= ratio / ratio_prev
             ratio_prev = ratio
-            S = int(math.ceil(min(max(mean_step, ratio), 2.0 * ratio + 0.5) * 2.0)) + 1
+            S = math.ceil(min(max(mean_step, ratio), 2.0 * ratio + 0.5) * 2.0) + 1
             cands = range(prev, min(m, prev + S + 1))
         scored = [(scorer.inliers(new_feats[k], ref_feats[j], (k, j)), j) for j in cands]
         best_n = max((c for c, _ in scored), default=-1)

@@ -442,9 +442,8 @@ class VP9Decoder(_Codec):
     def decode(self, packet: bytes, golden: np.ndarray | None = None, altref: np.ndarray | None = None) -> np.ndarray:
         """Decode one packet (after injecting ``golden`` and ``altref``); returns the padded I420 frame."""
         L = self.lib.lib
-        if golden is not None or altref is not None:
-            if self._n == 0:
-                raise ValueError("no reference injection before the keyframe")
+        if (golden is not None or altref is not None) and self._n == 0:
+            raise ValueError("no reference injection before the keyframe")
         if golden is not None:
             self.set_reference(golden, VP8_GOLD_FRAME)
         if altref is not None:

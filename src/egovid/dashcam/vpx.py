@@ -379,23 +379,21 @@ class VP9Encoder(_Codec):
             self._control(ctrl, ctypes.c_int(value))
         self._pts = 0
 
-    def encode(self, frame: np.ndarray, golden: np.ndarray | None = None, altref: np.ndarray | None = None) -> bytes:
-        """Encode one padded I420 frame; ``golden`` (and optionally ``altref``, padded I420) are
-        injected before it. The first frame is the keyframe and must come without them. Returns
-        the frame's packet."""
+    def encode(self, frame: np.ndarray, golden: np.ndarray | None = None) -> bytes:
+        """Encode one padded I420 frame; ``golden`` (padded I420) is injected before it. The first
+        frame is the keyframe and must come without ``golden``. Returns the frame's packet.
+
+        (Injecting a second aligned frame into ALTREF as well was measured and made the stream
+        larger — the encoder treats ALTREF as a filtered future frame — so only GOLDEN is used.)"""
         L = self.lib.lib
         flags = 0
         if self._pts == 0:
-            if golden is not None or altref is not None:
+            if golden is not None:
                 raise ValueError("no reference injection on the keyframe")
             flags = VPX_EFLAG_FORCE_KF
         elif golden is not None:
             self.set_reference(golden, VP8_GOLD_FRAME)
-            flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF
-            if altref is not None:
-                self.set_reference(altref, VP8_ALTR_FRAME)
-            else:
-                flags |= VP8_EFLAG_NO_REF_ARF
+            flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF | VP8_EFLAG_NO_REF_ARF
         img = self._wrap(frame)
         deadline = VPX_DL_REALTIME if self.settings.realtime else VPX_DL_GOOD_QUALITY
         _check(
@@ -439,15 +437,13 @@ class VP9Decoder(_Codec):
         self._open = True
         self._n = 0
 
-    def decode(self, packet: bytes, golden: np.ndarray | None = None, altref: np.ndarray | None = None) -> np.ndarray:
-        """Decode one packet (after injecting ``golden`` and ``altref``); returns the padded I420 frame."""
+    def decode(self, packet: bytes, golden: np.ndarray | None = None) -> np.ndarray:
+        """Decode one packet (after injecting ``golden``); returns the padded I420 frame."""
         L = self.lib.lib
-        if (golden is not None or altref is not None) and self._n == 0:
-            raise ValueError("no reference injection before the keyframe")
         if golden is not None:
+            if self._n == 0:
+                raise ValueError("no reference injection before the keyframe")
             self.set_reference(golden, VP8_GOLD_FRAME)
-        if altref is not None:
-            self.set_reference(altref, VP8_ALTR_FRAME)
         _check(self.lib, self.ctx, L.vpx_codec_decode(self.ctx, packet, len(packet), None, 0), "decode a frame")
         self._n += 1
         it = ctypes.c_void_p(0)

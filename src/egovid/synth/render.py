@@ -62,6 +62,18 @@ class SphereRenderer:
         map_y = ((np.float32(np.pi / 2) - lat) * self._sy - np.float32(0.5)).reshape(h, w)
         return map_x, map_y
 
+    def render_rolling(self, rotations: list[np.ndarray], position: np.ndarray | None = None) -> np.ndarray:
+        """A rolling-shutter view: the rows are split into ``len(rotations)`` bands, band i read
+        out with orientation ``rotations[i]`` (top band first)."""
+        h = self.intr.height
+        bands = np.linspace(0, h, len(rotations) + 1).round().astype(int)
+        mx = np.empty((h, self.intr.width), np.float32)
+        my = np.empty_like(mx)
+        for R, a, b in zip(rotations, bands[:-1], bands[1:], strict=True):
+            bx, by = self.maps(R, position)
+            mx[a:b], my[a:b] = bx[a:b], by[a:b]
+        return cv2.remap(self.pano, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+
     def render(self, R: np.ndarray, position: np.ndarray | None = None) -> np.ndarray:
         """HxWx3 BGR view for orientation ``R`` (camera-to-world) at ``position`` (metres)."""
         mx, my = self.maps(R, position)

@@ -1,0 +1,1 @@
+"""Evaluation methodology for visual odometers (thesis Part IV)."""

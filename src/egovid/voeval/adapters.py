@@ -1,0 +1,327 @@
+"""Visual odometers under evaluation, each giving per-frame camera rotations in egovid's
+convention (camera-to-world, x right, y down, z forward, relative to the first frame),
+re-orthonormalised, with a mask of the frames it actually tracked.
+
+* ``egovid`` — egovid's own estimator (features, pairwise RANSAC, SO(3) pose graph);
+* ``ecc`` — a direct method: ECC alignment of consecutive frames with a homography
+  (``cv2.findTransformECC``), rotation ``K⁻¹HK`` projected to SO(3), chained;
+* ``monovo`` — the classic Mono-VO recipe: FAST corners tracked by KLT, essential matrix +
+  ``recoverPose`` per frame pair, chained; features re-detected when too few survive;
+* ``colmap`` — incremental structure from motion (pycolmap, the VisualSfM-like method), run in a
+  separate process (pycolmap and OpenCV ship clashing libraries); unregistered frames are lost;
+* ``cmd`` — any external odometer: ``--vo-cmd "tool {video} {out}"`` writing TUM or KITTI;
+  the convention can be OpenCV (default) or OpenGL (y up, z backwards).
+
+A VO that crashes, times out or loses track is recorded with its status; lost frames hold the last
+tracked orientation (a VO that never tracks scores as "no motion").
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from egovid.geometry import project_to_so3
+from egovid.io.camera import Intrinsics
+from egovid.io.trajectory import read_trajectory
+from egovid.io.video import iter_frames
+
+OPENGL_TO_CV = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass
+class VOResult:
+    """Rotations (N, 3, 3) of a VO on one video, what it tracked, and how it went."""
+
+    R: np.ndarray
+    valid: np.ndarray
+    status: str = "ok"  # ok | lost-tracking | failed | timeout
+    seconds: float = 0.0
+    message: str = ""
+    extra: dict = field(default_factory=dict)
+
+
+def finalize(R: np.ndarray, valid: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Hold the last tracked orientation over lost frames, orthonormalise, make frame 0 the
+    identity. Returns (R, valid) of length ``n``."""
+    R = np.asarray(R, dtype=float)[:n]
+    valid = np.asarray(valid, dtype=bool)[:n]
+    if len(R) < n:
+        R = np.concatenate([R, np.repeat(np.eye(3)[None], n - len(R), 0)])
+        valid = np.concatenate([valid, np.zeros(n - len(valid), bool)])
+    out = np.repeat(np.eye(3)[None], n, 0)
+    if valid.any():
+        first = int(np.argmax(valid))
+        ref = project_to_so3(R[first])
+        last = np.eye(3)
+        for k in range(n):
+            if valid[k]:
+                last = ref.T @ project_to_so3(R[k])
+            out[k] = last
+    return project_to_so3(out), valid
+
+
+def _status(valid: np.ndarray) -> str:
+    if not valid.any():
+        return "failed"
+    return "ok" if valid.all() else "lost-tracking"
+
+
+class VisualOdometer:
+    """Base class: ``run(video, intrinsics, workdir) -> VOResult``."""
+
+    name = "vo"
+
+    def run(self, video: Path, intr: Intrinsics, workdir: Path) -> VOResult:
+        raise NotImplementedError
+
+
+class EgovidVO(VisualOdometer):
+    name = "egovid"
+
+    def run(self, video, intr, workdir) -> VOResult:
+        from egovid.motion.estimate import MotionOptions, estimate_motion
+
+        est = estimate_motion(video, intr, MotionOptions(work_width=max(320, intr.width)))
+        n = len(est.trajectory)
+        failed_steps = {i for i, j, p in est.pairs if j == i + 1 and not p.ok}
+        valid = np.ones(n, bool)
+        for i in failed_steps:
+            valid[i + 1] = False
+        R, valid = finalize(est.trajectory.R, valid, n)
+        return VOResult(R, valid, _status(valid))
+
+
+class EccVO(VisualOdometer):
+    """Direct method: frame-to-frame ECC homography, rotation from K⁻¹HK."""
+
+    name = "ecc"
+
+    def run(self, video, intr, workdir) -> VOResult:
+        K, Ki = intr.K, intr.K_inv
+        crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 60, 1e-5)
+        prev = None
+        R = [np.eye(3)]
+        valid = [True]
+        for f in iter_frames(video, gray=True):
+            g = cv2.GaussianBlur(f.image, (5, 5), 1.0).astype(np.float32)
+            if prev is not None:
+                warp = np.eye(3, dtype=np.float32)
+                try:
+                    _, warp = cv2.findTransformECC(prev, g, warp, cv2.MOTION_HOMOGRAPHY, crit, None, 5)
+                    # warp maps frame-(k-1) pixels to frame-k pixels: K Q K^-1 with Q = R_k^T R_{k-1},
+                    # so R_k = R_{k-1} Q^T.
+                    Q = project_to_so3(Ki @ warp.astype(float) @ K)
+                    R.append(R[-1] @ Q.T)
+                    valid.append(True)
+                except cv2.error:
+                    R.append(R[-1])
+                    valid.append(False)
+            prev = g
+        Rf, v = finalize(np.stack(R), np.array(valid), len(R))
+        return VOResult(Rf, v, _status(v))
+
+
+class MonoVO(VisualOdometer):
+    """FAST + KLT + essential matrix, chained (no bundle adjustment)."""
+
+    name = "monovo"
+
+    def run(self, video, intr, workdir) -> VOResult:
+        K = intr.K
+        fast = cv2.FastFeatureDetector_create(threshold=20, nonmaxSuppression=True)
+        lk = {
+            "winSize": (21, 21),
+            "maxLevel": 3,
+            "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
+        }
+        prev, pts = None, None
+        R = [np.eye(3)]
+        valid = [True]
+        for f in iter_frames(video, gray=True):
+            g = f.image
+            if prev is None:
+                pts = np.array([k.pt for k in fast.detect(g)], np.float32).reshape(-1, 1, 2)
+                prev = g
+                continue
+            ok = False
+            if pts is not None and len(pts) >= 8:
+                nxt, st, _ = cv2.calcOpticalFlowPyrLK(prev, g, pts, None, **lk)
+                good = st.ravel() == 1
+                p0, p1 = pts[good].reshape(-1, 2), nxt[good].reshape(-1, 2)
+                if len(p0) >= 8:
+                    E, mask = cv2.findEssentialMat(p1, p0, K, cv2.RANSAC, 0.999, 1.0)
+                    if E is not None and E.shape == (3, 3):
+                        _, Rr, _, _ = cv2.recoverPose(E, p1, p0, K, mask=mask)
+                        # Rr maps frame-k coordinates to frame-(k-1): R_k = R_{k-1} Rr.
+                        R.append(R[-1] @ Rr)
+                        ok = True
+                pts = p1.reshape(-1, 1, 2)
+            if not ok:
+                R.append(R[-1])
+            valid.append(ok)
+            if pts is None or len(pts) < 300:
+                pts = np.array([k.pt for k in fast.detect(g)], np.float32).reshape(-1, 1, 2)
+            prev = g
+        Rf, v = finalize(np.stack(R), np.array(valid), len(R))
+        return VOResult(Rf, v, _status(v))
+
+
+class ColmapVO(VisualOdometer):
+    """pycolmap incremental mapping, in a separate process."""
+
+    name = "colmap"
+
+    def __init__(self, timeout: float = 600.0) -> None:
+        self.timeout = timeout
+
+    def run(self, video, intr, workdir) -> VOResult:
+        img_dir = workdir / "colmap-images"
+        img_dir.mkdir(parents=True, exist_ok=True)
+        n = 0
+        for f in iter_frames(video):
+            cv2.imwrite(str(img_dir / f"{f.index:06d}.png"), f.image)
+            n += 1
+        out = workdir / "colmap.json"
+        cmd = [
+            sys.executable,
+            "-m",
+            "egovid.voeval.colmap_worker",
+            str(img_dir),
+            str(out),
+            str(intr.fx),
+            str(intr.fy),
+            str(intr.cx),
+            str(intr.cy),
+        ]
+        try:
+            r = subprocess.run(cmd, capture_output=True, text=True, timeout=self.timeout)
+        except subprocess.TimeoutExpired:
+            return VOResult(np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "timeout")
+        if r.returncode != 0 or not out.exists():
+            msg = (r.stderr or r.stdout)[-300:]
+            return VOResult(np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "failed", message=msg)
+        data = json.loads(out.read_text())
+        R = np.repeat(np.eye(3)[None], n, 0)
+        valid = np.zeros(n, bool)
+        for name, rot in data["rotations"].items():
+            k = int(Path(name).stem)
+            if k < n:
+                R[k] = np.array(rot).T  # cam_from_world -> camera-to-world
+                valid[k] = True
+        Rf, v = finalize(R, valid, n)
+        return VOResult(Rf, v, _status(v), extra={"registered": int(valid.sum())})
+
+
+class CommandVO(VisualOdometer):
+    """An external odometer run as ``template.format(video=..., out=...)`` writing TUM/KITTI."""
+
+    def __init__(self, template: str, name: str = "cmd", convention: str = "opencv", timeout: float = 600.0):
+        self.template = template
+        self.name = name
+        self.convention = convention
+        self.timeout = timeout
+
+    def run(self, video, intr, workdir) -> VOResult:
+        from egovid.io.video import probe
+
+        n = probe(video).frame_count
+        out = workdir / f"{self.name}.txt"
+        cmd = self.template.format(
+            video=shlex.quote(str(video)),
+            out=shlex.quote(str(out)),
+            fx=intr.fx,
+            fy=intr.fy,
+            cx=intr.cx,
+            cy=intr.cy,
+            width=intr.width,
+            height=intr.height,
+        )
+        try:
+            r = subprocess.run(cmd, shell=True, capture_output=True, text=True, timeout=self.timeout)
+        except subprocess.TimeoutExpired:
+            return VOResult(np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "timeout")
+        if r.returncode != 0 or not out.exists():
+            return VOResult(
+                np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "failed", message=(r.stderr or r.stdout)[-300:]
+            )
+        try:
+            traj = read_trajectory(out)
+        except Exception as exc:  # a broken output file is a failed run, not a crash of the grid
+            return VOResult(np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "failed", message=str(exc)[:300])
+        R = traj.R
+        if self.convention == "opengl":
+            R = OPENGL_TO_CV @ R @ OPENGL_TO_CV
+        valid = np.ones(len(R), bool)
+        Rf, v = finalize(R, valid, n)
+        return VOResult(Rf, v, _status(v))
+
+
+class TruthVO(VisualOdometer):
+    """The ground truth itself (tests: zero pose error, capped visual errors)."""
+
+    name = "truth"
+
+    def __init__(self, truth: Callable[[Path], np.ndarray], drift_deg_per_frame: float = 0.0):
+        self.truth = truth
+        self.drift = drift_deg_per_frame
+        if self.drift:
+            self.name = "drift"
+
+    def run(self, video, intr, workdir) -> VOResult:
+        from egovid.geometry import rot_y
+
+        R = self.truth(video)
+        if self.drift:
+            R = R @ rot_y(self.drift * np.arange(len(R)))
+        Rf, v = finalize(R, np.ones(len(R), bool), len(R))
+        return VOResult(Rf, v, "ok")
+
+
+BUILTIN = {"egovid": EgovidVO, "ecc": EccVO, "monovo": MonoVO, "colmap": ColmapVO}
+
+
+def timed_run(vo: VisualOdometer, video: Path, intr: Intrinsics, workdir: Path) -> VOResult:
+    """Run a VO, turning any exception into a ``failed`` result."""
+    from egovid.io.video import probe
+
+    workdir.mkdir(parents=True, exist_ok=True)
+    t = time.perf_counter()
+    try:
+        res = vo.run(video, intr, workdir)
+    except Exception as exc:
+        n = probe(video).frame_count
+        res = VOResult(
+            np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "failed", message=f"{type(exc).__name__}: {exc}"[:300]
+        )
+    res.seconds = time.perf_counter() - t
+    return res
+
+
+def make_vos(names: list[str], commands: list[str] | None = None) -> list[VisualOdometer]:
+    """Odometers by name (``egovid, ecc, monovo, colmap``) plus external commands."""
+    from egovid.errors import EgovidError
+
+    out: list[VisualOdometer] = []
+    for n in names:
+        if n not in BUILTIN:
+            raise EgovidError(f"unknown visual odometer {n!r}", f"choose from {', '.join(BUILTIN)} or use --vo-cmd")
+        out.append(BUILTIN[n]())
+    for i, c in enumerate(commands or []):
+        name, _, tmpl = c.partition("=") if "=" in c.split(" ")[0] else (f"cmd{i + 1}", "", c)
+        if "{video}" not in tmpl or "{out}" not in tmpl:
+            raise EgovidError(f"--vo-cmd {c!r} lacks {{video}} or {{out}}", 'write e.g. --vo-cmd "myvo {video} {out}"')
+        out.append(CommandVO(tmpl, name))
+    if os.environ.get("EGOVID_VOEVAL_NO_COLMAP"):
+        out = [v for v in out if v.name != "colmap"]
+    return out

@@ -1,0 +1,188 @@
+"""Controlled test videos with known rotation (thesis §21.2, §21.4) and the factor pairs.
+
+Two kinds of video, as in the thesis:
+
+* **orbit** — a camera orbiting on a circle of radius r at distance d above a planar picture,
+  always looking at its centre, with no rotation about its optical axis (eq. 21.1–21.6); the
+  picture is rendered through the exact plane-to-image homography. Used for factors 1–3.
+* **pano** — the first-person "running" motion (yaw and pitch sines, pitch at twice the yaw
+  rate) rendered from the panorama sphere, walking slowly forward so two-view methods can
+  initialise. Used for factor 4, whose challenging scene adds rolling shutter (rows read out over
+  0.9 frame) and motion blur (5 sub-frames over half a frame).
+
+Scenes (each pair differs in one factor only, everything else fixed):
+
+=============  ==============================================
+factor         ideal scene → challenging scene
+=============  ==============================================
+feature        orbit-ideal → orbit-fog (fog, 25 % contrast)
+data           orbit-ideal → orbit-unseen (pictures never shown to a learned model)
+sensor         orbit-ideal → orbit-sensor (noise, vignetting, over-exposure)
+motion         pano-ideal  → pano-motion (rolling shutter, motion blur)
+compression    every scene at H.264 CRF 18 … 48 and lossless
+=============  ==============================================
+
+The thesis drew these from KITTI / Virtual KITTI and its own recordings; here every factor is
+synthesised from photos bundled with scikit-image, so each one can be switched on alone.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from egovid.geometry import matrix_from_euler
+from egovid.io.camera import Intrinsics
+from egovid.io.trajectory import Trajectory, write_tum
+from egovid.io.video import VideoWriter
+from egovid.synth import effects
+from egovid.synth.photos import photo
+
+#: Pictures a learned odometer would have been trained on, and pictures it never saw.
+LEARNED = ("astronaut", "coffee", "rocket", "chelsea")
+UNSEEN = ("stereo_motorcycle", "cat", "grace_hopper", "colorwheel")
+
+SCENES = ("orbit-ideal", "orbit-fog", "orbit-unseen", "orbit-sensor", "pano-ideal", "pano-motion")
+FACTORS = {
+    "feature": ("orbit-ideal", "orbit-fog"),
+    "data": ("orbit-ideal", "orbit-unseen"),
+    "sensor": ("orbit-ideal", "orbit-sensor"),
+    "motion": ("pano-ideal", "pano-motion"),
+}
+
+
+@dataclass
+class SceneTruth:
+    """Ground truth of a rendered scene: camera-to-world rotations relative to frame 0."""
+
+    name: str
+    R: np.ndarray
+    intrinsics: Intrinsics
+    fps: float
+
+    def save(self, folder: Path) -> None:
+        traj = Trajectory(np.arange(len(self.R)) / self.fps, self.R)
+        write_tum(folder / f"{self.name}.gt.tum", traj)
+        i = self.intrinsics
+        meta = {
+            "name": self.name,
+            "fps": self.fps,
+            "width": i.width,
+            "height": i.height,
+            "fx": i.fx,
+            "fy": i.fy,
+            "cx": i.cx,
+            "cy": i.cy,
+            "frames": len(self.R),
+        }
+        (folder / f"{self.name}.json").write_text(json.dumps(meta, indent=1))
+
+    @classmethod
+    def load(cls, folder: Path, name: str) -> SceneTruth:
+        from egovid.io.trajectory import read_tum
+
+        meta = json.loads((folder / f"{name}.json").read_text())
+        intr = Intrinsics(meta["width"], meta["height"], meta["fx"], meta["fy"], meta["cx"], meta["cy"])
+        return cls(name, read_tum(folder / f"{name}.gt.tum").R, intr, meta["fps"])
+
+
+def mosaic(names: tuple[str, ...], size: int = 1024) -> np.ndarray:
+    """A 2 x 2 mosaic of photos (size x size BGR)."""
+    half = size // 2
+    tiles = [cv2.resize(photo(n), (half, half), interpolation=cv2.INTER_AREA) for n in names[:4]]
+    return np.vstack([np.hstack(tiles[:2]), np.hstack(tiles[2:4])])
+
+
+def orbit_pose(t: float, r: float, d: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
+    """Camera centre and camera-to-world rotation on the orbit at time t (eq. 21.1–21.5): the
+    picture lies in the plane Z = 0 centred at the origin; the camera looks at the origin with its
+    x axis along the projection of the world X axis (no rotation about the optical axis)."""
+    c = np.array([r * math.cos(omega * t), -r * math.sin(omega * t), d])
+    z = -c / np.linalg.norm(c)
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return c, np.stack([x, y, z], axis=1)
+
+
+def render_orbit(picture: np.ndarray, intr: Intrinsics, c: np.ndarray, R: np.ndarray, width_units: float = 2.0):
+    """The view of ``picture`` (spanning ``width_units`` in X, centred) from centre ``c``, rotation ``R``."""
+    ph, pw = picture.shape[:2]
+    s = pw / width_units
+    # World +Y is "up" on the picture (its rows grow downwards, towards -Y).
+    S = np.array([[s, 0, pw / 2.0], [0, -s, ph / 2.0], [0, 0, 1.0]])
+    L = np.array([[-c[2], 0, c[0]], [0, -c[2], c[1]], [0, 0, 1.0]])
+    H = S @ L @ R @ intr.K_inv  # camera pixel -> picture pixel
+    return cv2.warpPerspective(
+        picture,
+        H,
+        (intr.width, intr.height),
+        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_REFLECT,
+    )
+
+
+def running_angles(frames: np.ndarray, yaw: float = 6.0, pitch: float = 1.5, period: float = 24.0) -> np.ndarray:
+    """Running motion at (fractional) frame times: yaw and pitch sines, pitch at twice the rate."""
+    w = 2 * np.pi / period
+    f = np.asarray(frames, dtype=float)
+    return np.stack([yaw * np.sin(w * f), pitch * np.sin(2 * w * f), 0.3 * np.sin(w * f - 1.0)], axis=-1)
+
+
+def render_scene(
+    name: str, out: Path, *, frames: int = 48, width: int = 320, height: int = 240, fps: float = 30.0, seed: int = 0
+) -> SceneTruth:
+    """Render one scene losslessly (FFV1 .mkv) and return its ground truth."""
+    if name not in SCENES:
+        from egovid.errors import EgovidError
+
+        raise EgovidError(f"unknown scene {name!r}", f"choose from {', '.join(SCENES)}")
+    rng = np.random.default_rng(seed)
+    Rs = []
+    if name.startswith("orbit"):
+        intr = Intrinsics.from_hfov(width, height, 60.0)
+        picture = mosaic(UNSEEN if name == "orbit-unseen" else LEARNED)
+        omega = 2 * math.pi / frames
+        with VideoWriter(out, width, height, fps, codec="ffv1") as w:
+            for k in range(frames):
+                c, R = orbit_pose(k, 0.25, 1.0, omega)
+                img = render_orbit(picture, intr, c, R)
+                if name == "orbit-fog":
+                    img = effects.fog(img, 0.75)
+                elif name == "orbit-sensor":
+                    img = effects.sensor(img, rng)
+                w.write(img, k / fps)
+                Rs.append(R)
+    else:
+        from egovid.synth.fpv import scene_panorama
+        from egovid.synth.render import SphereRenderer
+
+        intr = Intrinsics.from_hfov(width, height, 75.0)
+        rend = SphereRenderer(scene_panorama("panorama", 2048, seed), intr)
+        forward = 0.02  # metres per frame in a 10 m sphere
+        with VideoWriter(out, width, height, fps, codec="ffv1") as w:
+            for k in range(frames):
+                pos = np.array([0.0, 0.0, forward * k])
+                if name == "pano-motion":
+                    readout, exposure, sub = 0.9, 0.5, 5
+                    subs = []
+                    for j in range(sub):
+                        t0 = k + exposure * j / (sub - 1)
+                        ts = t0 + readout * np.linspace(0, 1, 16)
+                        a = running_angles(ts)
+                        subs.append(rend.render_rolling(list(matrix_from_euler(a[:, 0], a[:, 1], a[:, 2])), pos))
+                    img = effects.blur_average(subs)
+                    a = running_angles(np.array([k + exposure / 2 + readout / 2]))[0]
+                else:
+                    a = running_angles(np.array([k]))[0]
+                    img = rend.render(matrix_from_euler(*a), pos)
+                w.write(img, k / fps)
+                Rs.append(matrix_from_euler(*a))
+    R = np.stack(Rs)
+    R = np.swapaxes(R[0], -1, -2) @ R
+    return SceneTruth(name, R, intr, fps)

@@ -14,10 +14,11 @@ import time
 from collections import defaultdict
 
 import numpy as np
-from _common import cache_dir, report
 
 from egovid.voeval.report import write_report
 from egovid.voeval.runner import GridConfig, load_results, run_grid
+
+from _common import cache_dir, report
 
 
 def main() -> None:
@@ -29,7 +30,7 @@ def main() -> None:
     summary = run_grid(out, GridConfig(workers=os.cpu_count() or 2))
     total = time.perf_counter() - t
     write_report(out)
-    results, vos, scenes, levels = load_results(out)
+    results, _, _, _ = load_results(out)
     per_vo = defaultdict(list)
     status = defaultdict(lambda: defaultdict(int))
     for (vo, _s, _l), c in results.items():

@@ -4,9 +4,9 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
-# System packages: ffmpeg (vid.stab peer for the stabiliser benchmark, libvpx), PostgreSQL server
-# (the dashcam catalogue's scale-out backend, tested against a real server).
-APT_PACKAGES := ffmpeg postgresql
+# System package: ffmpeg (the vid.stab peer of the stabiliser's tests and benchmark; it also brings
+# Debian's libvpx, a second VP9 build the dashcam codec can use via EGOVID_LIBVPX).
+APT_PACKAGES := ffmpeg
 
 .PHONY: help install sysdeps demo test lint bench clean
 
@@ -18,7 +18,6 @@ help:
 sysdeps:
 	@missing=""; \
 	command -v ffmpeg >/dev/null || missing="$$missing ffmpeg"; \
-	ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1 || missing="$$missing postgresql"; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing system packages:$$missing"; \
 	  SUDO=$$([ "$$(id -u)" -eq 0 ] || echo sudo); \

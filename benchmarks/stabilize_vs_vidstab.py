@@ -13,7 +13,6 @@ passes. Targets: ITF gain >= vid.stab's, FPMI retention better, fps >= 0.5x vid.
 
 from __future__ import annotations
 
-import subprocess
 import time
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from egovid.metrics.itf import ITFAccumulator
 from egovid.motion.estimate import estimate_motion
 from egovid.perception.score import score_angles
 from egovid.stabilize.pipeline import pure_motion, stabilize
+from egovid.stabilize.vidstab import run_vidstab
 from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 
@@ -44,59 +44,6 @@ def make_clips(folder: Path) -> dict[str, Path]:
             render_fpv(p, angles, width=1280, height=720, noise_std=2.0, seed=7)
         out[name] = p
     return out
-
-
-def run(cmd: list[str]) -> None:
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-
-
-def vidstab(src: Path, dst: Path, folder: Path) -> tuple[float, list[np.ndarray]]:
-    trf = folder / (src.stem + ".trf")
-    t = time.perf_counter()
-    run(["ffmpeg", "-v", "error", "-y", "-i", str(src), "-vf", f"vidstabdetect=result={trf}", "-f", "null", "-"])
-    run(
-        [
-            "ffmpeg",
-            "-v",
-            "error",
-            "-y",
-            "-i",
-            str(src),
-            "-vf",
-            f"vidstabtransform=input={trf}:optzoom=0:crop=black",
-            "-c:v",
-            "libx264",
-            "-preset",
-            "veryfast",
-            "-crf",
-            "18",
-            str(dst),
-        ]
-    )
-    seconds = time.perf_counter() - t
-    info = probe(src)
-    white = folder / (src.stem + ".white.mkv")
-    run(
-        [
-            "ffmpeg",
-            "-v",
-            "error",
-            "-y",
-            "-f",
-            "lavfi",
-            "-i",
-            f"color=white:s={info.width}x{info.height}:r=30",
-            "-frames:v",
-            str(count_frames(src)),
-            "-vf",
-            f"vidstabtransform=input={trf}:optzoom=0:crop=black",
-            "-c:v",
-            "ffv1",
-            str(white),
-        ]
-    )
-    masks = [f.image > 128 for f in iter_frames(white, gray=True)]
-    return seconds, masks
 
 
 def itf_of(video: Path, masks=None) -> float:
@@ -124,7 +71,7 @@ def main() -> None:
         ve_in, pure_in = motion_scores(clip, intr)
         itf_in = itf_of(clip)
         vs_out = folder / f"{name}.vidstab.mp4"
-        vs_seconds, vs_masks = vidstab(clip, vs_out, folder)
+        vs_seconds, vs_masks = run_vidstab(clip, vs_out, folder)
         vs_itf = itf_of(vs_out, vs_masks)
         vs_black = float(np.mean([1 - m.mean() for m in vs_masks]))
         vs_ve, vs_pure = motion_scores(vs_out, intr)

@@ -24,6 +24,14 @@ def run_cli(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
     )
 
 
+def assert_one_error(r: subprocess.CompletedProcess, needle: str = "") -> None:
+    """A user error: exit status 2, no traceback, exactly one ``error:`` line containing ``needle``."""
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1 and needle in lines[0], r.stderr
+
+
 @pytest.fixture(scope="session")
 def shaky_clip(tmp_path_factory) -> Path:
     """640x360, 90 frames of running motion with roll, shake and sensor noise (H.264)."""

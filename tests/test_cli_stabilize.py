@@ -12,7 +12,7 @@ import numpy as np
 
 from egovid.io.video import VideoWriter, count_frames, iter_frames
 
-from conftest import run_cli
+from conftest import assert_one_error, run_cli
 
 
 def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
@@ -65,22 +65,15 @@ def _add_audio(video, dst):
     os.replace(out, dst)
 
 
-def _error(r, needle):
-    assert r.returncode == 2, r.stdout + r.stderr
-    assert "Traceback" not in r.stderr
-    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
-    assert len(lines) == 1 and needle in lines[0], r.stderr
-
-
 def test_stabilize_bad_input(tmp_path, still_clip):
     out = tmp_path / "o.mp4"
-    _error(run_cli("fpv", "stabilize", tmp_path / "none.mp4", "-o", out), "not found")
-    _error(run_cli("fpv", "stabilize", still_clip, "-o", out, "--strength", "3"), "strength")
-    _error(run_cli("fpv", "stabilize", still_clip, "-o", out, "--borders", "pink"), "border mode")
-    _error(run_cli("fpv", "stabilize", still_clip, "-o", still_clip), "overwrite the input")
+    assert_one_error(run_cli("fpv", "stabilize", tmp_path / "none.mp4", "-o", out), "not found")
+    assert_one_error(run_cli("fpv", "stabilize", still_clip, "-o", out, "--strength", "3"), "strength")
+    assert_one_error(run_cli("fpv", "stabilize", still_clip, "-o", out, "--borders", "pink"), "border mode")
+    assert_one_error(run_cli("fpv", "stabilize", still_clip, "-o", still_clip), "overwrite the input")
     m = tmp_path / "m.csv"
     m.write_text("frame,time,yaw,pitch,roll\n0,0,0,0,0\n1,0.03,0,0,0\n")
-    _error(run_cli("fpv", "stabilize", still_clip, "-o", out, "--motion", m), "has 2 frames")
+    assert_one_error(run_cli("fpv", "stabilize", still_clip, "-o", out, "--motion", m), "has 2 frames")
     assert not out.exists()
 
 

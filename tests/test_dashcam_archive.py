@@ -17,7 +17,7 @@ from egovid.dashcam.archive import Archive, IngestOptions
 from egovid.io.video import iter_frames
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
-from conftest import run_cli
+from conftest import assert_one_error, run_cli
 
 W, H = 320, 180
 
@@ -116,13 +116,6 @@ def test_list_show_report(archive):
     assert sum(p["frames"] for p in rep["paths"]) == sum(d["frames"] for d in rep["drives"])
 
 
-def _error(r, needle):
-    assert r.returncode == 2, r.stdout + r.stderr
-    assert "Traceback" not in r.stderr
-    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
-    assert len(lines) == 1 and needle in lines[0], r.stderr
-
-
 def _state(root):
     db = sqlite3.connect(str(root / "catalogue.sqlite"))
     try:
@@ -147,14 +140,14 @@ def test_bad_input_changes_nothing(archive, drives, tmp_path):
         t, rest = ln.split(",", 1)
         out.append((dt.datetime.fromisoformat(t) + dt.timedelta(days=1)).isoformat() + "," + rest)
     shifted.write_text("\n".join(out) + "\n")
-    _error(run_cli("dashcam", "ingest", root, video_a, "--gps", shifted, "--name", "x"), "covers 0%")
-    _error(run_cli("dashcam", "ingest", root, video_a, "--gps", video_a, "--name", "x"), "binary")
+    assert_one_error(run_cli("dashcam", "ingest", root, video_a, "--gps", shifted, "--name", "x"), "covers 0%")
+    assert_one_error(run_cli("dashcam", "ingest", root, video_a, "--gps", video_a, "--name", "x"), "binary")
     broken = tmp_path / "broken.mp4"
     broken.write_bytes(video_a.read_bytes()[:2000])
-    _error(run_cli("dashcam", "ingest", root, broken, "--gps", gps_a, "--name", "x"), "")
-    _error(run_cli("dashcam", "ingest", root, video_a, "--gps", gps_a), "already in the archive")
-    _error(run_cli("dashcam", "extract", root, "nobody", "-o", tmp_path / "x.mkv"), "no drive")
-    _error(run_cli("dashcam", "ingest", tmp_path, video_a, "--gps", gps_a), "not an egovid archive")
+    assert_one_error(run_cli("dashcam", "ingest", root, broken, "--gps", gps_a, "--name", "x"), "")
+    assert_one_error(run_cli("dashcam", "ingest", root, video_a, "--gps", gps_a), "already in the archive")
+    assert_one_error(run_cli("dashcam", "extract", root, "nobody", "-o", tmp_path / "x.mkv"), "no drive")
+    assert_one_error(run_cli("dashcam", "ingest", tmp_path, video_a, "--gps", gps_a), "not an egovid archive")
     assert _state(root) == before
 
 

@@ -2,7 +2,6 @@
 optimiser's trade-off, rendering geometry, and whole clips against ffmpeg's vid.stab."""
 
 import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -10,7 +9,7 @@ import pytest
 from egovid.errors import EgovidError
 from egovid.geometry import matrix_from_euler
 from egovid.io.camera import Intrinsics
-from egovid.io.video import count_frames, iter_frames, probe, read_frames
+from egovid.io.video import count_frames, iter_frames, read_frames
 from egovid.metrics.itf import ITFAccumulator
 from egovid.perception.score import score_angles
 from egovid.stabilize.fpm import (
@@ -24,6 +23,7 @@ from egovid.stabilize.fpm import (
 from egovid.stabilize.optimize import optimize_axis
 from egovid.stabilize.pipeline import pure_motion, stabilize
 from egovid.stabilize.render import crop_factor, homographies
+from egovid.stabilize.vidstab import run_vidstab
 from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 
@@ -120,67 +120,13 @@ def test_large_intentional_pan_survives(pan_clip, tmp_path):
     assert res.ve_after > res.ve_before
 
 
-def _vidstab(src, dst, tmp_path):
-    trf = tmp_path / "t.trf"
-    subprocess.run(
-        ["ffmpeg", "-v", "error", "-y", "-i", str(src), "-vf", f"vidstabdetect=result={trf}", "-f", "null", "-"],
-        check=True,
-    )
-    subprocess.run(
-        [
-            "ffmpeg",
-            "-v",
-            "error",
-            "-y",
-            "-i",
-            str(src),
-            "-vf",
-            f"vidstabtransform=input={trf}:optzoom=0:crop=black",
-            "-c:v",
-            "libx264",
-            "-crf",
-            "18",
-            "-preset",
-            "veryfast",
-            str(dst),
-        ],
-        check=True,
-    )
-    white = tmp_path / "white.mp4"
-    info = probe(src)
-    subprocess.run(
-        [
-            "ffmpeg",
-            "-v",
-            "error",
-            "-y",
-            "-f",
-            "lavfi",
-            "-i",
-            f"color=white:s={info.width}x{info.height}:r=30",
-            "-frames:v",
-            str(count_frames(src)),
-            "-vf",
-            f"vidstabtransform=input={trf}:optzoom=0:crop=black",
-            "-c:v",
-            "libx264",
-            "-crf",
-            "0",
-            str(white),
-        ],
-        check=True,
-    )
-    masks = [f.image > 128 for f in iter_frames(white, gray=True)]
-    return masks
-
-
 @pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg (vid.stab) is installed by make")
 def test_running_clip_beats_vidstab_on_itf_and_keeps_fpmi(shaky_clip, tmp_path):
     res = stabilize(shaky_clip, tmp_path / "ours.mp4", borders="black")
     assert res.ve_after > res.ve_before + 0.3
     assert abs(res.fpmi_after - res.fpmi_before) < 0.1  # pure-FPM VE changes little
     assert count_frames(tmp_path / "ours.mp4") == count_frames(shaky_clip)
-    masks = _vidstab(shaky_clip, tmp_path / "vs.mp4", tmp_path)
+    _, masks = run_vidstab(shaky_clip, tmp_path / "vs.mp4", tmp_path)
     acc = ITFAccumulator()
     for f, m in zip(iter_frames(tmp_path / "vs.mp4"), masks, strict=True):
         acc.add(f.image, m)

@@ -271,16 +271,9 @@ class Archive:
         """The baseline builder of a joint segment (None for an intra segment)."""
         if seg.mode != "joint":
             return None
-        ref = DriveFrames(self, int(seg.ref_drive_id))
-        pw, ph = vpx.padded_size(seg.params["width"], seg.params["height"])
-        kind = seg.align.get("kind", "none")
-        params = seg.align.get("params")
-
-        def build(k: int) -> np.ndarray:
-            frame = vpx.pad_i420(ref.get(int(seg.refmap[k])), pw, ph)
-            return codec.apply_alignment(frame, pw, ph, kind, params[k] if params else None)
-
-        return build
+        return baseline_builder(
+            DriveFrames(self, int(seg.ref_drive_id)), seg.refmap, seg.params["width"], seg.params["height"], seg.align
+        )
 
     def decode(self, seg: Segment, start: int = 0) -> Iterator[np.ndarray]:
         """Unpadded I420 frames of a segment, from its frame ``start``."""
@@ -600,19 +593,14 @@ class Archive:
             if opts.baseline_align != "none":
                 align = self._estimate_alignment(opts.baseline_align, video, f0, f1, refmap, ref_frames, w, h, scorer)
         # Pass 2: encode.
-        pw, ph = vpx.padded_size(w, h)
-        kind, params = align.get("kind", "none"), align.get("params")
-
-        def baselines(k: int) -> np.ndarray:
-            frame = vpx.pad_i420(ref_frames.get(int(refmap[k])), pw, ph)
-            return codec.apply_alignment(frame, pw, ph, kind, params[k] if params else None)
+        baselines = baseline_builder(ref_frames, refmap, w, h, align) if ref_seq is not None else None
 
         def frames() -> Iterator[np.ndarray]:
             for _ in range(k_total):
                 yield next(reader2).image
 
         cb = (lambda k: progress("encode", done + k, n_total)) if progress else None
-        enc = codec.encode_segment(frames(), w, h, settings, baselines if ref_seq is not None else None, cb)
+        enc = codec.encode_segment(frames(), w, h, settings, baselines, cb)
         standalone = None
         if ref_seq is not None and opts.measure_savings:
             standalone = len(codec.encode_segment(_reread(video, f0, f1), w, h, settings).blob)
@@ -752,6 +740,21 @@ class Archive:
             "blob_bytes": blob_bytes,
             "codec": vpx.self_test(),
         }
+
+
+def baseline_builder(
+    ref_frames: DriveFrames, refmap: np.ndarray, width: int, height: int, align: dict
+) -> Callable[[int], np.ndarray]:
+    """Frame k's baseline: the decoded reference frame ``refmap[k]``, padded, globally aligned by
+    the stored parameters. The same function serves the encoder and every later decoder."""
+    pw, ph = vpx.padded_size(width, height)
+    kind, params = align.get("kind", "none"), align.get("params")
+
+    def build(k: int) -> np.ndarray:
+        frame = vpx.pad_i420(ref_frames.get(int(refmap[k])), pw, ph)
+        return codec.apply_alignment(frame, pw, ph, kind, params[k] if params else None)
+
+    return build
 
 
 def _reread(video, f0: int, f1: int) -> Iterator[np.ndarray]:

@@ -4,7 +4,9 @@ Two models compete on the same (sub-pixel refined) matches:
 
 * **rotation** — a RANSAC homography finds the matches consistent with a pure rotation; the
   rotation is the least-squares alignment of their bearing vectors (Kabsch), i.e. ``K⁻¹HK``
-  projected onto SO(3) without the projective noise of ``H``;
+  projected onto SO(3) without the projective noise of ``H``, fitted together with a zoom about
+  the principal point (what walking forward in front of a distant scene looks like), which would
+  otherwise bias the rotation;
 * **essential** — rotation plus a translation direction, refined jointly by minimising the
   Sampson epipolar error over the inliers (5 parameters), starting from the rotation model.
 
@@ -67,9 +69,34 @@ def kabsch(b_from: np.ndarray, b_to: np.ndarray, weights: np.ndarray | None = No
     return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
 
 
-def rotation_residuals(Q: np.ndarray, pj: np.ndarray, pi: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Pixel distances between frame-i points and frame-j points rotated by ``Q`` into frame i."""
-    h = np.column_stack([pj, np.ones(len(pj))]) @ (K @ Q @ np.linalg.inv(K)).T
+def rotation_zoom(xi: np.ndarray, xj: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, float]:
+    """Rotation Q and zoom s with ``x_i ∝ diag(s, s, 1) Q x_j`` (normalised image points, (N, 3)).
+
+    A camera moving along its optical axis in front of a distant, roughly equidistant scene sees a
+    zoom about the principal point; left in the residuals it biases a pure-rotation fit towards
+    the side with more features. Solved by alternation: Kabsch on de-zoomed bearings, then the
+    least-squares zoom in closed form.
+    """
+    s = 1.0
+    Q = np.eye(3)
+    for _ in range(iterations):
+        xi_ = xi.copy()
+        xi_[:, :2] /= s
+        bi = xi_ / np.linalg.norm(xi_, axis=1, keepdims=True)
+        bj = xj / np.linalg.norm(xj, axis=1, keepdims=True)
+        Q = kabsch(bj, bi)
+        u = xj @ Q.T
+        u = u[:, :2] / u[:, 2:3]
+        den = float(np.sum(u * u))
+        s = float(np.sum(u * xi[:, :2]) / den) if den > 1e-12 else 1.0
+    return Q, s
+
+
+def rotation_residuals(Q: np.ndarray, pj: np.ndarray, pi: np.ndarray, K: np.ndarray, zoom: float = 1.0) -> np.ndarray:
+    """Pixel distances between frame-i points and frame-j points rotated by ``Q`` (and zoomed by
+    ``zoom`` about the principal point) into frame i."""
+    S = np.diag([zoom, zoom, 1.0])
+    h = np.column_stack([pj, np.ones(len(pj))]) @ (K @ S @ Q @ np.linalg.inv(K)).T
     return np.linalg.norm(h[:, :2] / h[:, 2:3] - pi, axis=1)
 
 
@@ -204,18 +231,21 @@ def relative_rotation(
     K_inv = np.linalg.inv(K)
     focal = 0.5 * (K[0, 0] + K[1, 1])
     bi, bj = bearings(pi, K_inv), bearings(pj, K_inv)
+    xi = np.column_stack([pi, np.ones(n)]) @ K_inv.T
+    xj = np.column_stack([pj, np.ones(n)]) @ K_inv.T
     inl = rotation_residuals(Q, pj, pi, K) < 2.0 * threshold_px
     if inl.sum() < MIN_INLIERS:
         return _failed(int(inl.sum()), n)
+    zoom = 1.0
     for _ in range(3):
-        Q = kabsch(bj[inl], bi[inl])
-        r = rotation_residuals(Q, pj, pi, K)
+        Q, zoom = rotation_zoom(xi[inl], xj[inl])
+        r = rotation_residuals(Q, pj, pi, K, zoom)
         sigma = max(0.02, 1.4826 * float(np.median(r[inl])) / 1.1774)  # per-axis noise, robust
         inl = r < min(threshold_px, max(4.0 * sigma, 0.1))
         if inl.sum() < MIN_INLIERS:
             return _failed(int(inl.sum()), n)
-    Q = kabsch(bj[inl], bi[inl])
-    r = rotation_residuals(Q, pj, pi, K)
+    Q, zoom = rotation_zoom(xi[inl], xj[inl])
+    r = rotation_residuals(Q, pj, pi, K, zoom)
     n_rot = int(inl.sum())
     res_rot = float(np.sqrt(np.mean(r[inl] ** 2) / 2.0))
     rot = PairRotation(Q, n_rot, n, "rotation", True, _information(Q, bj[inl], res_rot / focal), res_rot)
@@ -224,8 +254,6 @@ def relative_rotation(
     loose = r < 4.0 * threshold_px
     if loose.sum() - n_rot < max(8, 0.05 * n_rot):
         return rot
-    xi = np.column_stack([pi, np.ones(n)]) @ K_inv.T
-    xj = np.column_stack([pj, np.ones(n)]) @ K_inv.T
     t = _translation_given(Q, bi[loose], bj[loose])
     Qe, te = _refine_essential(Q, t, xi[loose], xj[loose], focal, max(res_rot, 0.05))
     d = np.abs(sampson_px(Qe, te, xi, xj, focal))

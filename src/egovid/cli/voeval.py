@@ -18,7 +18,9 @@ app = typer.Typer(
 @app.command("run")
 def run(
     out: Path = typer.Option(..., "--out", help="Run folder (created; an existing run is resumed)."),
-    vo: str = typer.Option("egovid,ecc,monovo,colmap", help="Built-in odometers: egovid, ecc, monovo, colmap."),
+    vo: str = typer.Option(
+        None, help="Built-in odometers: egovid, ecc, monovo, colmap, orbslam3 (default: all available)."
+    ),
     vo_cmd: list[str] = typer.Option(
         [], help='External VO: "[NAME=]tool {video} {out}" writing TUM/KITTI; repeatable.'
     ),

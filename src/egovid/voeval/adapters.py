@@ -9,6 +9,8 @@ re-orthonormalised, with a mask of the frames it actually tracked.
   ``recoverPose`` per frame pair, chained; features re-detected when too few survive;
 * ``colmap`` — incremental structure from motion (pycolmap, the VisualSfM-like method), run in a
   separate process (pycolmap and OpenCV ship clashing libraries); unregistered frames are lost;
+* ``orbslam3`` — ORB-SLAM3 monocular (pyorbslam3) with a vocabulary built locally from bundled
+  photos (no download), in a separate process; frames before initialisation are lost;
 * ``cmd`` — any external odometer: ``--vo-cmd "tool {video} {out}"`` writing TUM or KITTI;
   the convention can be OpenCV (default) or OpenGL (y up, z backwards).
 
@@ -223,6 +225,60 @@ class ColmapVO(VisualOdometer):
         return VOResult(Rf, v, _status(v), extra={"registered": int(valid.sum())})
 
 
+class OrbSlam3VO(VisualOdometer):
+    """ORB-SLAM3 (monocular) through pyorbslam3, with a vocabulary built locally from bundled
+    photos (:mod:`egovid.voeval.orbvocab`), in a separate process."""
+
+    name = "orbslam3"
+
+    def __init__(self, timeout: float = 600.0) -> None:
+        self.timeout = timeout
+
+    def run(self, video, intr, workdir) -> VOResult:
+        from egovid.io.video import probe
+        from egovid.voeval.orbvocab import build_vocabulary
+
+        img_dir = workdir / "orbslam-images"
+        img_dir.mkdir(parents=True, exist_ok=True)
+        n = 0
+        for f in iter_frames(video):
+            cv2.imwrite(str(img_dir / f"{f.index:06d}.png"), f.image)
+            n += 1
+        out = workdir / "orbslam.json"
+        fps = probe(video).fps
+        cmd = [
+            sys.executable,
+            "-m",
+            "egovid.voeval.orbslam_worker",
+            str(img_dir),
+            str(out),
+            str(build_vocabulary()),
+            *(str(v) for v in (intr.fx, intr.fy, intr.cx, intr.cy, intr.width, intr.height, fps)),
+        ]
+        try:
+            r = subprocess.run(cmd, capture_output=True, text=True, timeout=self.timeout)
+        except subprocess.TimeoutExpired:
+            return VOResult(np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "timeout")
+        if r.returncode != 0 or not out.exists():
+            msg = (r.stderr or r.stdout)[-300:]
+            return VOResult(np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "failed", message=msg)
+        data = json.loads(out.read_text())
+        R = np.repeat(np.eye(3)[None], n, 0)
+        valid = np.zeros(n, bool)
+        for k, rot in data["rotations"].items():
+            if int(k) < n:
+                R[int(k)] = np.array(rot)
+                valid[int(k)] = True
+        Rf, v = finalize(R, valid, n)
+        return VOResult(Rf, v, _status(v), extra={"tracked": int(valid.sum())})
+
+
+def orbslam3_available() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("pyorbslam3") is not None
+
+
 class CommandVO(VisualOdometer):
     """An external odometer run as ``template.format(video=..., out=...)`` writing TUM/KITTI."""
 
@@ -288,7 +344,7 @@ class TruthVO(VisualOdometer):
         return VOResult(Rf, v, "ok")
 
 
-BUILTIN = {"egovid": EgovidVO, "ecc": EccVO, "monovo": MonoVO, "colmap": ColmapVO}
+BUILTIN = {"egovid": EgovidVO, "ecc": EccVO, "monovo": MonoVO, "colmap": ColmapVO, "orbslam3": OrbSlam3VO}
 
 
 def timed_run(vo: VisualOdometer, video: Path, intr: Intrinsics, workdir: Path) -> VOResult:
@@ -316,6 +372,8 @@ def make_vos(names: list[str], commands: list[str] | None = None) -> list[Visual
     for n in names:
         if n not in BUILTIN:
             raise EgovidError(f"unknown visual odometer {n!r}", f"choose from {', '.join(BUILTIN)} or use --vo-cmd")
+        if n == "orbslam3" and not orbslam3_available():
+            raise EgovidError("ORB-SLAM3 (pyorbslam3) is not installed", "pip install pyorbslam3 (x86-64 Linux)")
         out.append(BUILTIN[n]())
     for i, c in enumerate(commands or []):
         name, _, tmpl = c.partition("=") if "=" in c.split(" ")[0] else (f"cmd{i + 1}", "", c)

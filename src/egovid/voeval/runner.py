@@ -38,11 +38,18 @@ LEVELS = ("lossless", *(f"crf{c}" for c in CRFS))
 VISUAL_IMAGES = ("astronaut", "coffee", "rocket")
 
 
+def default_vos() -> list[str]:
+    """The built-in odometers available here (ORB-SLAM3 only where pyorbslam3 installs)."""
+    from egovid.voeval.adapters import orbslam3_available
+
+    return ["egovid", "ecc", "monovo", "colmap", *(["orbslam3"] if orbslam3_available() else [])]
+
+
 @dataclass
 class GridConfig:
     """What to evaluate (defaults: the thesis' ladder, short clips)."""
 
-    vos: list[str] = field(default_factory=lambda: ["egovid", "ecc", "monovo", "colmap"])
+    vos: list[str] = field(default_factory=lambda: default_vos())
     commands: list[str] = field(default_factory=list)
     frames: int = 48
     width: int = 320
@@ -149,7 +156,7 @@ def run_grid(out: str | os.PathLike, cfg: GridConfig, progress: Callable[[str, i
         for lv in cfg.levels
         if not cell_path(out, v.name, s, lv).exists()
     ]
-    slow = {"colmap": 0}
+    slow = {"colmap": 0, "orbslam3": 0}
     todo.sort(key=lambda c: slow.get(c[0], 1))
     total = len(vos) * len(cfg.scenes) * len(cfg.levels)
     done = total - len(todo)

@@ -177,3 +177,20 @@ def test_bad_vo_arguments(tmp_path):
     assert r.returncode == 2 and "{video}" in r.stderr
     r = run_cli("voeval", "report", tmp_path / "nothing")
     assert r.returncode == 2 and "no results" in r.stderr
+
+
+@pytest.mark.parametrize("name", ["colmap", "orbslam3"])
+def test_sfm_and_slam_adapters_recover_the_orbit(tmp_path, name):
+    from egovid.voeval.adapters import anchor_to_truth, make_vos, orbslam3_available, timed_run
+    from egovid.voeval.scenes import render_scene
+
+    if name == "orbslam3" and not orbslam3_available():
+        pytest.skip("pyorbslam3 installs only on x86-64 Linux")
+    truth = render_scene("orbit-ideal", tmp_path / "orbit.mkv", frames=48)
+    res = timed_run(make_vos([name])[0], tmp_path / "orbit.mkv", truth.intrinsics, tmp_path / "work")
+    assert res.status in ("ok", "lost-tracking"), res.message
+    assert res.valid.sum() >= 36
+    # Where tracked, the rotations agree with the ground truth (one camera convention).
+    R = anchor_to_truth(res.R, res.valid, truth.R)
+    err = angle_deg(np.swapaxes(R, 1, 2) @ truth.R)
+    assert np.median(err[res.valid]) < 1.0

@@ -73,6 +73,24 @@ def finalize(R: np.ndarray, valid: np.ndarray, n: int) -> tuple[np.ndarray, np.n
     return project_to_so3(out), valid
 
 
+def anchor_to_truth(R: np.ndarray, valid: np.ndarray, R_gt: np.ndarray) -> np.ndarray:
+    """Express an estimate that started tracking late in the ground truth's frame.
+
+    :func:`finalize` makes the first *tracked* frame the identity; when that is not frame 0, the
+    odometer could not know how far the camera had turned before it initialised. Its trajectory is
+    anchored to the true orientation of its first tracked frame; the frames before stay at the
+    identity (no estimate means "no motion"), so the late start is still paid for.
+    """
+    if not valid.any():
+        return R
+    first = int(np.argmax(valid))
+    if first == 0:
+        return R
+    out = R.copy()
+    out[first:] = R_gt[first] @ R[first:]
+    return out
+
+
 def _status(valid: np.ndarray) -> str:
     if not valid.any():
         return "failed"
@@ -179,98 +197,75 @@ class MonoVO(VisualOdometer):
         return VOResult(Rf, v, _status(v))
 
 
-class ColmapVO(VisualOdometer):
-    """pycolmap incremental mapping, in a separate process."""
+class WorkerVO(VisualOdometer):
+    """An odometer run by an egovid worker module in its own process, on the frames as PNG files
+    (crash isolation, and no native-library clashes with OpenCV). The worker writes JSON
+    ``{"rotations": {frame: 3x3}}``; :meth:`rotation` turns an entry into camera-to-world."""
 
-    name = "colmap"
-
-    def __init__(self, timeout: float = 600.0) -> None:
-        self.timeout = timeout
-
-    def run(self, video, intr, workdir) -> VOResult:
-        img_dir = workdir / "colmap-images"
-        img_dir.mkdir(parents=True, exist_ok=True)
-        n = 0
-        for f in iter_frames(video):
-            cv2.imwrite(str(img_dir / f"{f.index:06d}.png"), f.image)
-            n += 1
-        out = workdir / "colmap.json"
-        cmd = [
-            sys.executable,
-            "-m",
-            "egovid.voeval.colmap_worker",
-            str(img_dir),
-            str(out),
-            str(intr.fx),
-            str(intr.fy),
-            str(intr.cx),
-            str(intr.cy),
-        ]
-        try:
-            r = subprocess.run(cmd, capture_output=True, text=True, timeout=self.timeout)
-        except subprocess.TimeoutExpired:
-            return VOResult(np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "timeout")
-        if r.returncode != 0 or not out.exists():
-            msg = (r.stderr or r.stdout)[-300:]
-            return VOResult(np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "failed", message=msg)
-        data = json.loads(out.read_text())
-        R = np.repeat(np.eye(3)[None], n, 0)
-        valid = np.zeros(n, bool)
-        for name, rot in data["rotations"].items():
-            k = int(Path(name).stem)
-            if k < n:
-                R[k] = np.array(rot).T  # cam_from_world -> camera-to-world
-                valid[k] = True
-        Rf, v = finalize(R, valid, n)
-        return VOResult(Rf, v, _status(v), extra={"registered": int(valid.sum())})
-
-
-class OrbSlam3VO(VisualOdometer):
-    """ORB-SLAM3 (monocular) through pyorbslam3, with a vocabulary built locally from bundled
-    photos (:mod:`egovid.voeval.orbvocab`), in a separate process."""
-
-    name = "orbslam3"
+    module = ""
 
     def __init__(self, timeout: float = 600.0) -> None:
         self.timeout = timeout
+
+    def worker_args(self, intr: Intrinsics, fps: float) -> list[str]:
+        return []
+
+    def rotation(self, matrix: np.ndarray) -> np.ndarray:
+        return matrix
 
     def run(self, video, intr, workdir) -> VOResult:
         from egovid.io.video import probe
-        from egovid.voeval.orbvocab import build_vocabulary
 
-        img_dir = workdir / "orbslam-images"
+        img_dir = workdir / "frames"
         img_dir.mkdir(parents=True, exist_ok=True)
         n = 0
         for f in iter_frames(video):
             cv2.imwrite(str(img_dir / f"{f.index:06d}.png"), f.image)
             n += 1
-        out = workdir / "orbslam.json"
-        fps = probe(video).fps
-        cmd = [
-            sys.executable,
-            "-m",
-            "egovid.voeval.orbslam_worker",
-            str(img_dir),
-            str(out),
-            str(build_vocabulary()),
-            *(str(v) for v in (intr.fx, intr.fy, intr.cx, intr.cy, intr.width, intr.height, fps)),
-        ]
+        out = workdir / "worker.json"
+        cmd = [sys.executable, "-m", self.module, str(img_dir), str(out), *self.worker_args(intr, probe(video).fps)]
+        lost = (np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool))
         try:
             r = subprocess.run(cmd, capture_output=True, text=True, timeout=self.timeout)
         except subprocess.TimeoutExpired:
-            return VOResult(np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "timeout")
+            return VOResult(*lost, "timeout")
         if r.returncode != 0 or not out.exists():
-            msg = (r.stderr or r.stdout)[-300:]
-            return VOResult(np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool), "failed", message=msg)
-        data = json.loads(out.read_text())
-        R = np.repeat(np.eye(3)[None], n, 0)
-        valid = np.zeros(n, bool)
-        for k, rot in data["rotations"].items():
-            if int(k) < n:
-                R[int(k)] = np.array(rot)
-                valid[int(k)] = True
+            return VOResult(*lost, "failed", message=(r.stderr or r.stdout)[-300:])
+        R, valid = lost[0].copy(), lost[1].copy()
+        for key, rot in json.loads(out.read_text())["rotations"].items():
+            k = int(Path(key).stem)
+            if k < n:
+                R[k] = self.rotation(np.array(rot))
+                valid[k] = True
         Rf, v = finalize(R, valid, n)
         return VOResult(Rf, v, _status(v), extra={"tracked": int(valid.sum())})
+
+
+class ColmapVO(WorkerVO):
+    """pycolmap incremental mapping (SIFT, sequential matching, fixed pinhole intrinsics)."""
+
+    name = "colmap"
+    module = "egovid.voeval.colmap_worker"
+
+    def worker_args(self, intr, fps) -> list[str]:
+        return [str(v) for v in (intr.fx, intr.fy, intr.cx, intr.cy)]
+
+    def rotation(self, matrix: np.ndarray) -> np.ndarray:
+        return matrix.T  # cam_from_world -> camera-to-world
+
+
+class OrbSlam3VO(WorkerVO):
+    """ORB-SLAM3 (monocular) through pyorbslam3, with a vocabulary built locally from bundled
+    photos (:mod:`egovid.voeval.orbvocab`)."""
+
+    name = "orbslam3"
+    module = "egovid.voeval.orbslam_worker"
+
+    def worker_args(self, intr, fps) -> list[str]:
+        from egovid.voeval.orbvocab import build_vocabulary
+
+        vocab = str(build_vocabulary())
+        return [vocab, *(str(v) for v in (intr.fx, intr.fy, intr.cx, intr.cy, intr.width, intr.height, fps))]
 
 
 def orbslam3_available() -> bool:

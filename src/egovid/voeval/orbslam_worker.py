@@ -60,7 +60,7 @@ def main() -> None:
                 img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
                 r = slam.track_monocular(img, k / float(fps))
                 if r.pose_valid:
-                    rotations[int(f.stem)] = np.asarray(r.pose_wc)[:3, :3].tolist()
+                    rotations[f.stem] = np.asarray(r.pose_wc)[:3, :3].tolist()
         finally:
             slam.shutdown()
     out.write_text(json.dumps({"rotations": rotations}))

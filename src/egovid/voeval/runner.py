@@ -30,7 +30,7 @@ from egovid.io.video import VideoWriter, iter_frames
 from egovid.metrics.pose_error import pose_error
 from egovid.metrics.visual_error import DEFAULT_CAP_DB, visual_errors
 from egovid.synth.photos import photo
-from egovid.voeval.adapters import make_vos, timed_run
+from egovid.voeval.adapters import anchor_to_truth, make_vos, timed_run
 from egovid.voeval.scenes import SCENES, SceneTruth, render_scene
 
 CRFS = (18, 24, 30, 36, 42, 48)
@@ -102,7 +102,8 @@ def run_cell(
     work = out / "work" / vo_name / f"{scene}__{level}"
     res = timed_run(vo, video_path(out, scene, level), truth.intrinsics, work)
     n = min(len(res.R), len(truth.R))
-    R, R_gt = res.R[:n], truth.R[:n]
+    R_gt = truth.R[:n]
+    R = anchor_to_truth(res.R[:n], res.valid[:n], R_gt)
     pe = pose_error(R_gt, R)
     oitf, ritf = visual_errors([photo(p) for p in VISUAL_IMAGES], R_gt, R, truth.intrinsics, cap_db=cap_db)
     cell = {

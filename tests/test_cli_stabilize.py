@@ -74,6 +74,9 @@ def test_stabilize_bad_input(tmp_path, still_clip):
     m = tmp_path / "m.csv"
     m.write_text("frame,time,yaw,pitch,roll\n0,0,0,0,0\n1,0.03,0,0,0\n")
     assert_one_error(run_cli("fpv", "stabilize", still_clip, "-o", out, "--motion", m), "has 2 frames")
+    short = tmp_path / "short.mp4"
+    assert run_cli("synth", "fpv", short, "--frames", "6", "--size", "160x120").returncode == 0
+    assert_one_error(run_cli("fpv", "stabilize", short, "-o", out), "fewer than one scoring window")
     assert not out.exists()
 
 

@@ -21,7 +21,7 @@ from egovid.io.camera import Intrinsics
 from egovid.io.trajectory import Trajectory
 from egovid.io.video import probe
 from egovid.perception.model import ViewingModel
-from egovid.perception.score import score_angles
+from egovid.perception.score import check_angles, score_angles
 from egovid.stabilize.fpm import find_anchors, pure_fpm
 from egovid.stabilize.optimize import AxisPlan, OptimizeOptions, optimize_axis
 from egovid.stabilize.render import RenderStats, homographies, render_stabilized
@@ -143,6 +143,7 @@ def stabilize(
     t1 = time.perf_counter()
     angles = motion.euler()
     fps = info.fps
+    check_angles(angles, fps, model)  # too short to score: say so before writing anything
     cb = (lambda d, t: progress("optimise", d, t)) if progress else None
     edited, plans = plan_motion(
         angles, fps, intr, strength=strength, keep_roll=keep_roll, model=model, opts=opts, progress=cb

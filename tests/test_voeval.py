@@ -190,7 +190,9 @@ def test_sfm_and_slam_adapters_recover_the_orbit(tmp_path, name):
     res = timed_run(make_vos([name])[0], tmp_path / "orbit.mkv", truth.intrinsics, tmp_path / "work")
     assert res.status in ("ok", "lost-tracking"), res.message
     assert res.valid.sum() >= 36
-    # Where tracked, the rotations agree with the ground truth (one camera convention).
+    # Where tracked, the rotations agree with the ground truth (one camera convention; a wrong
+    # convention is off by tens of degrees). ORB-SLAM3 is multi-threaded and not deterministic:
+    # its error on this planar scene varies between runs around a degree.
     R = anchor_to_truth(res.R, res.valid, truth.R)
     err = angle_deg(np.swapaxes(R, 1, 2) @ truth.R)
-    assert np.median(err[res.valid]) < 1.0
+    assert np.median(err[res.valid]) < (1.0 if name == "colmap" else 3.0)

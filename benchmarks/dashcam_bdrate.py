@@ -9,7 +9,9 @@ search alone, SeqSLAM (thesis: 16.7–35.1 %), and the ground truth (oracle). Bo
 from the same noisy 1 Hz GPS prior. The reference drive is itself VP9-coded at the same
 quantiser, and the baseline is built from its decoded frames, as in the archive.
 
-BD-rate: bjontegaard (pchip), PSNR-Y, quantisers 20/28/36/44 (libvpx 0–63 scale). Also the global
+BD-rate: bjontegaard (pchip), PSNR-Y, quantisers 20/28/36/44 (libvpx 0–63 scale), with the
+archive's coding structure (anchors every 8 frames, frames between at q + 12; the standalone encode
+uses the same structure) and, for comparison, low delay (every frame from the one before). Also the global
 alignment of the baseline (gain, similarity) on the different-day set, alignment error in frames
 against the synthetic ground truth, and `egovid dashcam ingest` frames per second at 1280x720.
 Env: EGOVID_BENCH_SIZE (default 640x360).
@@ -36,6 +38,7 @@ from egovid.synth.drive import ORIGIN, DriveSpec, Light, gps_samples, render_dri
 from _common import cache_dir, report
 
 QS = (20, 28, 36, 44)
+GOP = 8  # the archive's default coding structure (anchors every 8 frames); 1 = low delay
 LEG = [("main", 20.0, 75.0)]
 
 
@@ -109,11 +112,12 @@ def similarity_params(B, dec, refmap, w, h, sc) -> list[list[int]]:
 
 
 def encode_all(job) -> dict:
-    """One quantiser: the reference drive, the new drive alone, and jointly for every alignment."""
-    ref_path, new_path, q, w, h, maps, refined, kinds, sim_params = job
+    """One quantiser and coding structure: the reference drive, the new drive alone, and jointly
+    for every alignment."""
+    ref_path, new_path, q, gop, w, h, maps, refined, kinds, sim_params = job
     pw, ph = vpx.padded_size(w, h)
     A, B = frames_of(ref_path), frames_of(new_path)
-    st = vpx.EncoderSettings(q=q)
+    st = vpx.EncoderSettings(q=q, speed=5, gop=gop)
     recs: list = []
     codec.encode_segment(iter(A), w, h, st, keep_recon=recs)
     s = codec.encode_segment(iter(B), w, h, st)
@@ -163,7 +167,7 @@ def main() -> None:
             oracle = np.array([int(np.argmin(np.abs(ta.s - s))) for s in tb.s])
             if not ref_cache:
                 rec: list = []
-                codec.encode_segment(iter(A), w, h, vpx.EncoderSettings(q=28), keep_recon=rec)
+                codec.encode_segment(iter(A), w, h, vpx.EncoderSettings(q=28, speed=5, gop=GOP), keep_recon=rec)
                 ref_cache[28] = rec
             # Aligners, all from the same GPS prior, on the decoded reference at q = 28.
             pa, pb = gps_positions(ref_spec, ta, 30.0), gps_positions(new_spec, tb, 30.0)
@@ -197,15 +201,27 @@ def main() -> None:
             }
             kinds = ("gain", "similarity") if set_name == "day" else ()
             sim_params = similarity_params(B, dec, refined, w, h, sc) if kinds else None
-            jobs = [(str(paths["ref"]), str(paths[name]), q, w, h, maps, refined, kinds, sim_params) for q in QS]
+            args = (str(paths["ref"]), str(paths[name]))
+            ld_maps = {k: maps[k] for k in ("oracle", "orb")}
+            jobs = [(*args, q, GOP, w, h, maps, refined, kinds, sim_params) for q in QS]
+            jobs += [(*args, q, 1, w, h, ld_maps, refined, (), None) for q in QS]
             with ProcessPoolExecutor(max_workers=os.cpu_count() or 2) as pool:
                 per_q = list(pool.map(encode_all, jobs))
-            alone = {"r": [x["alone"][0] for x in per_q], "p": [x["alone"][1] for x in per_q]}
-            joint = {k: {"r": [x[k][0] for x in per_q], "p": [x[k][1] for x in per_q]} for k in maps}
-            extra = {k: {"r": [x[k][0] for x in per_q], "p": [x[k][1] for x in per_q]} for k in kinds}
-            row["bd_rate_percent"] = {k: bd(alone["r"], alone["p"], v["r"], v["p"]) for k, v in joint.items()}
-            for kind, v in extra.items():
-                row["bd_rate_percent"][f"orb+{kind}"] = bd(alone["r"], alone["p"], v["r"], v["p"])
+            per_q, per_q_ld = per_q[: len(QS)], per_q[len(QS) :]
+
+            def curve(rows_, k):
+                return [x[k][0] for x in rows_], [x[k][1] for x in rows_]
+
+            row["bd_rate_percent"] = {k: bd(*curve(per_q, "alone"), *curve(per_q, k)) for k in maps}
+            for kind in kinds:
+                row["bd_rate_percent"][f"orb+{kind}"] = bd(*curve(per_q, "alone"), *curve(per_q, kind))
+            for k in ld_maps:
+                # Low delay (every frame from the one before), against the low-delay standalone.
+                row["bd_rate_percent"][f"lowdelay:{k}"] = bd(*curve(per_q_ld, "alone"), *curve(per_q_ld, k))
+            # The two standalone structures against each other (negative = GOP 8 smaller).
+            row["bd_rate_percent"]["standalone gop8 vs lowdelay"] = bd(
+                *curve(per_q_ld, "alone"), *curve(per_q, "alone")
+            )
             rows.append(row)
             print(name, row["bd_rate_percent"], row["align_error_frames"], flush=True)
         avg = {k: float(np.mean([r["bd_rate_percent"][k] for r in rows])) for k in rows[0]["bd_rate_percent"]}

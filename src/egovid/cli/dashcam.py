@@ -45,6 +45,13 @@ def ingest(
     q: int = typer.Option(32, min=0, max=63, help="VP9 quantiser (0 = best quality, 63 = smallest)."),
     speed: int = typer.Option(5, min=0, max=9, help="libvpx cpu-used: higher = faster, larger files."),
     realtime: bool = typer.Option(False, help="Realtime encoder deadline (about 3x faster, ~10 % larger)."),
+    gop: int = typer.Option(
+        8,
+        min=1,
+        max=64,
+        help="Anchor spacing in frames: every GOP-th frame is coded first and the frames between "
+        "refer to it (and to the older drive) at a coarser quantiser (+12). 1 = low delay.",
+    ),
     aligner: str = typer.Option("orb", help="orb (default) | orb-plain (thesis only) | seqslam | gps."),
     baseline_align: str = typer.Option("none", help="Global alignment of the reference: none | gain | similarity."),
     savings: bool = typer.Option(True, help="Also encode standalone to measure the saving (doubles encoding)."),
@@ -75,6 +82,7 @@ def ingest(
         q=q,
         speed=speed,
         realtime=realtime,
+        gop=gop,
         aligner=aligner,
         baseline_align=baseline_align,
         measure_savings=savings,

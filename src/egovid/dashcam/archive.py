@@ -69,9 +69,11 @@ BASELINE_ALIGN = ("none", "gain", "similarity")
 class IngestOptions:
     """How a drive is ingested.
 
-    ``q``: VP9 quantiser 0-63 (lower = better quality); ``speed``: libvpx cpu-used; ``realtime``:
-    realtime instead of good-quality deadline; ``aligner``: orb (thesis' ORB search, smoothed and
-    photometrically refined; the default) | orb-plain (the thesis' search alone) | seqslam | gps;
+    ``q``: VP9 quantiser 0-63 (lower = better quality; frames between anchors use ``q + 12``);
+    ``speed``: libvpx cpu-used; ``realtime``: realtime instead of good-quality deadline; ``gop``:
+    anchor spacing in frames (8, the default; 1 = low delay, every frame from the one before);
+    ``aligner``: orb (thesis' ORB search, smoothed and photometrically refined; the default) |
+    orb-plain (the thesis' search alone) | seqslam | gps;
     ``baseline_align``: none | gain | similarity (global alignment of the baseline);
     ``measure_savings``: also encode each joint piece standalone to report the saving;
     ``verify``: decode each new bitstream as extract will and compare with the encoder.
@@ -80,6 +82,7 @@ class IngestOptions:
     q: int = 32
     speed: int = 5
     realtime: bool = False
+    gop: int = 8
     aligner: str = "orb"
     baseline_align: str = "none"
     measure_savings: bool = True
@@ -510,7 +513,9 @@ class Archive:
         cat = self.catalogue
         w, h = info.width, info.height
         k_total = f1 - f0
-        settings = vpx.EncoderSettings(q=opts.q, speed=opts.speed, realtime=opts.realtime, fps=round(info.fps) or 30)
+        settings = vpx.EncoderSettings(
+            q=opts.q, speed=opts.speed, realtime=opts.realtime, fps=round(info.fps) or 30, gop=opts.gop
+        )
         # Pass 1: illumination features and (if a reference may exist) ORB features.
         candidates = [
             s
@@ -611,6 +616,7 @@ class Archive:
             "q": opts.q,
             "speed": opts.speed,
             "realtime": opts.realtime,
+            "gop": opts.gop,
             "recon_digest": enc.recon_digest,
             "psnr_y": enc.psnr_y,
             "aligner": opts.aligner,
@@ -749,9 +755,21 @@ def baseline_builder(
     the stored parameters. The same function serves the encoder and every later decoder."""
     pw, ph = vpx.padded_size(width, height)
     kind, params = align.get("kind", "none"), align.get("params")
+    ahead: dict[int, np.ndarray] = {}
+    state = {"hi": -1}
 
     def build(k: int) -> np.ndarray:
-        frame = vpx.pad_i420(ref_frames.get(int(refmap[k])), pw, ph)
+        # Coding order visits an anchor before the frames behind it. Fetch every reference frame up
+        # to the anchor's in display order and keep them (at most one GOP), so that the older drive
+        # is decoded forward once even where its frame numbers jump (it stood still, we did not).
+        if k > state["hi"]:
+            for j in range(state["hi"] + 1, k + 1):
+                ahead[j] = ref_frames.get(int(refmap[j]))
+            state["hi"] = k
+        raw = ahead.pop(k) if k in ahead else ref_frames.get(int(refmap[k]))
+        for j in [j for j in ahead if j < k - 64]:  # never asked for (the first frames)
+            del ahead[j]
+        frame = vpx.pad_i420(raw, pw, ph)
         return codec.apply_alignment(frame, pw, ph, kind, params[k] if params else None)
 
     return build

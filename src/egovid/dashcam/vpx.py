@@ -47,6 +47,7 @@ VP8E_SET_STATIC_THRESHOLD = 17
 VP9E_SET_TILE_COLUMNS = 33
 VP9E_SET_AQ_MODE = 36
 VP9E_SET_ROW_MT = 55
+VP8_EFLAG_NO_UPD_LAST = 1 << 18
 VP8_EFLAG_NO_REF_ARF = 1 << 21
 VP8_EFLAG_NO_UPD_GF = 1 << 22
 VP8_EFLAG_NO_UPD_ARF = 1 << 23
@@ -169,6 +170,7 @@ def _setup(lib: ctypes.CDLL) -> None:
     lib.vpx_codec_enc_init_ver.argtypes = [vp, vp, vp, ctypes.c_long, ctypes.c_int]
     lib.vpx_codec_dec_init_ver.argtypes = [vp, vp, vp, ctypes.c_long, ctypes.c_int]
     lib.vpx_codec_encode.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_ulong, ctypes.c_long, ctypes.c_ulong]
+    lib.vpx_codec_enc_config_set.argtypes = [vp, vp]
     lib.vpx_codec_get_cx_data.argtypes = [vp, ctypes.POINTER(vp)]
     lib.vpx_codec_get_cx_data.restype = ctypes.POINTER(VpxPacket)
     lib.vpx_codec_decode.argtypes = [vp, ctypes.c_char_p, ctypes.c_uint, vp, ctypes.c_long]
@@ -324,12 +326,23 @@ class _Codec:
 
 @dataclass(frozen=True)
 class EncoderSettings:
-    """VP9 settings: fixed quantiser ``q`` (0-63), ``speed`` (cpu-used), ``realtime`` deadline."""
+    """VP9 settings: fixed quantiser ``q`` (0-63), ``speed`` (cpu-used), ``realtime`` deadline,
+    coding structure ``gop`` (1 = low delay; G > 1 = every G-th frame an *anchor* predicted from the
+    anchor before it, the frames between coded after it from the previous frame and the anchor
+    ahead, at quantiser ``q + gop_dq``; see :mod:`egovid.dashcam.codec`)."""
 
     q: int = 32
     speed: int = 4
     realtime: bool = False
     fps: int = 30
+    gop: int = 1
+    gop_dq: int = 12
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.gop <= 64:
+            raise EgovidError(f"GOP length {self.gop} is outside 1-64", "use 1 (low delay) or 8")
+        if not 0 <= self.gop_dq <= 63:
+            raise EgovidError(f"quantiser offset {self.gop_dq} is outside 0-63", "use e.g. 12")
 
 
 class VP9Encoder(_Codec):
@@ -378,14 +391,61 @@ class VP9Encoder(_Codec):
         ):
             self._control(ctrl, ctypes.c_int(value))
         self._pts = 0
+        self._q = settings.q
+        self._recon_slot = VP8_LAST_FRAME
+
+    def _set_q(self, q: int) -> None:
+        if q != self._q:
+            for name in ("rc_min_quantizer", "rc_max_quantizer"):
+                ctypes.c_uint.from_buffer(self._cfg, _CFG[name]).value = q
+            res = self.lib.lib.vpx_codec_enc_config_set(self.ctx, self._cfg)
+            _check(self.lib, self.ctx, res, "change the quantiser")
+            self._q = q
+
+    def encode_structured(
+        self,
+        frame: np.ndarray,
+        role: str,
+        golden: np.ndarray | None = None,
+        last: np.ndarray | None = None,
+        q: int | None = None,
+    ) -> bytes:
+        """Encode one padded I420 frame of a hierarchical structure (see :mod:`codec`).
+
+        ``role``: ``"key"``; ``"p"`` (from LAST, refreshes LAST; never injected — right after the
+        keyframe every reference slot shares one buffer); ``"anchor"`` (LAST is first loaded with
+        ``last``, the previous anchor; the result refreshes ALTREF only); ``"between"`` (from LAST =
+        the previous frame and ALTREF = the anchor ahead; refreshes LAST). ``golden`` is injected
+        into GOLDEN, which is never refreshed. The decoder must repeat the same loads in the same
+        order (:meth:`VP9Decoder.decode`)."""
+        if role == "key":
+            flags = VPX_EFLAG_FORCE_KF
+        elif role == "p":
+            flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF | VP8_EFLAG_NO_REF_ARF
+        elif role == "anchor":
+            flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_LAST | VP8_EFLAG_NO_REF_ARF
+        elif role == "between":
+            flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF
+        else:
+            raise ValueError(f"unknown frame role {role!r}")
+        if role in ("key", "p") and (golden is not None or last is not None):
+            raise ValueError("no reference injection on the first two frames")
+        if last is not None:
+            self.set_reference(last, VP8_LAST_FRAME)
+        if golden is not None:
+            self.set_reference(golden, VP8_GOLD_FRAME)
+        self._set_q(self.settings.q if q is None else q)
+        self._recon_slot = VP8_ALTR_FRAME if role == "anchor" else VP8_LAST_FRAME
+        return self._encode(frame, flags)
 
     def encode(self, frame: np.ndarray, golden: np.ndarray | None = None) -> bytes:
         """Encode one padded I420 frame; ``golden`` (padded I420) is injected before it. The first
         frame is the keyframe and must come without ``golden``. Returns the frame's packet.
 
-        (Injecting a second aligned frame into ALTREF as well was measured and made the stream
-        larger — the encoder treats ALTREF as a filtered future frame — so only GOLDEN is used.)"""
-        L = self.lib.lib
+        This is the low-delay structure; :meth:`encode_structured` codes frames out of order.
+        (Right after the keyframe every reference slot points to the keyframe's buffer, and
+        ``VP8_SET_REFERENCE`` copies into that buffer: frame 1 therefore sees the baseline in LAST
+        too. Both sides do the same, so decoding stays bit-exact.)"""
         flags = 0
         if self._pts == 0:
             if golden is not None:
@@ -394,6 +454,11 @@ class VP9Encoder(_Codec):
         elif golden is not None:
             self.set_reference(golden, VP8_GOLD_FRAME)
             flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF | VP8_EFLAG_NO_REF_ARF
+        self._recon_slot = VP8_LAST_FRAME
+        return self._encode(frame, flags)
+
+    def _encode(self, frame: np.ndarray, flags: int) -> bytes:
+        L = self.lib.lib
         img = self._wrap(frame)
         deadline = VPX_DL_REALTIME if self.settings.realtime else VPX_DL_GOOD_QUALITY
         _check(
@@ -418,7 +483,7 @@ class VP9Encoder(_Codec):
 
     def reconstruction(self) -> np.ndarray:
         """The encoder's reconstruction of the last frame (padded I420), what a decoder must output."""
-        return self.copy_reference(VP8_LAST_FRAME)
+        return self.copy_reference(self._recon_slot)
 
 
 class VP9Decoder(_Codec):
@@ -437,12 +502,15 @@ class VP9Decoder(_Codec):
         self._open = True
         self._n = 0
 
-    def decode(self, packet: bytes, golden: np.ndarray | None = None) -> np.ndarray:
-        """Decode one packet (after injecting ``golden``); returns the padded I420 frame."""
+    def decode(self, packet: bytes, golden: np.ndarray | None = None, last: np.ndarray | None = None) -> np.ndarray:
+        """Decode one packet (after loading ``last`` into LAST, then injecting ``golden`` into
+        GOLDEN, as the encoder did); returns the padded I420 frame."""
         L = self.lib.lib
+        if (golden is not None or last is not None) and self._n == 0:
+            raise ValueError("no reference injection before the keyframe")
+        if last is not None:
+            self.set_reference(last, VP8_LAST_FRAME)
         if golden is not None:
-            if self._n == 0:
-                raise ValueError("no reference injection before the keyframe")
             self.set_reference(golden, VP8_GOLD_FRAME)
         _check(self.lib, self.ctx, L.vpx_codec_decode(self.ctx, packet, len(packet), None, 0), "decode a frame")
         self._n += 1
@@ -527,6 +595,20 @@ def self_test() -> str:
         blind = VP9Decoder(w, h)
         differs = any(not np.array_equal(blind.decode(p), r) for p, r in zip(packets, recon, strict=True))
         blind.close()
+        # The out-of-order structure (codec.coding_plan, G = 3): key 0, p 1, anchor 4, between 2, 3.
+        plan = [(0, "key", None), (1, "p", None), (4, "anchor", 1), (2, "between", None), (3, "between", None)]
+        enc = VP9Encoder(w, h, EncoderSettings(q=20, speed=6))
+        held, coded = {}, []
+        for k, role, last_k in plan:
+            g = goldens[k] if role in ("anchor", "between") else None
+            pkt = enc.encode_structured(frames[k], role, g, held.get(last_k), 30 if role == "between" else None)
+            rec = enc.reconstruction()
+            held[k] = rec
+            coded.append((pkt, g, held.get(last_k) if role == "anchor" else None, rec))
+        enc.close()
+        dec = VP9Decoder(w, h)
+        ok = ok and all(np.array_equal(dec.decode(p, g, la), r) for p, g, la, r in coded)
+        dec.close()
     except EgovidError:
         raise
     except Exception as exc:  # pragma: no cover - ctypes failures

@@ -107,10 +107,14 @@ def coding_plan(n: int, gop: int) -> list[tuple[int, str, int | None]]:
     a = 1
     while a < n - 1:
         b = min(a + gop, n - 1)
-        plan.append((b, "anchor", a))
-        plan.extend((j, "between", None) for j in range(a + 1, b))
+        plan.extend(_chunk_plan(a, b))
         a = b
     return plan
+
+
+def _chunk_plan(a: int, b: int) -> list[tuple[int, str, int | None]]:
+    """One chunk after anchor ``a``: the anchor ``b`` (LAST loaded with frame a), then a+1 … b−1."""
+    return [(b, "anchor", a)] + [(j, "between", None) for j in range(a + 1, b)]
 
 
 # -- baselines ----------------------------------------------------------------------------------
@@ -226,14 +230,14 @@ def encode_segment(
                 if second is not None:
                     a, a_rec = 1, finish(1, second, enc.encode_structured(vpx.pad_i420(second, pw, ph), "p"))
                     q_between = min(63, settings.q + settings.gop_dq)
-                    while chunk := list(itertools.islice(it, gop)):
+                    while chunk := list(itertools.islice(it, gop)):  # frames a+1 … b
                         b = a + len(chunk)
-                        pkt = enc.encode_structured(vpx.pad_i420(chunk[-1], pw, ph), "anchor", base(b), a_rec)
-                        b_rec = finish(b, chunk[-1], pkt)
-                        for j in range(a + 1, b):
-                            frame = chunk[j - a - 1]
-                            pkt = enc.encode_structured(vpx.pad_i420(frame, pw, ph), "between", base(j), q=q_between)
-                            finish(j, frame, pkt)
+                        for k, role, _ in _chunk_plan(a, b):
+                            frame = vpx.pad_i420(chunk[k - a - 1], pw, ph)
+                            if role == "anchor":
+                                b_rec = finish(k, chunk[-1], enc.encode_structured(frame, role, base(k), a_rec))
+                            else:
+                                finish(k, chunk[k - a - 1], enc.encode_structured(frame, role, base(k), q=q_between))
                         a, a_rec = b, b_rec
     finally:
         enc.close()

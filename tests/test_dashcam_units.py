@@ -186,27 +186,47 @@ def _i420(rng, w, h, base=None, shift=0):
     return np.ascontiguousarray(base[:, shift : shift + w]), base
 
 
-@pytest.mark.parametrize(("kind", "gop"), [("none", 1), ("gain", 1), ("similarity", 1), ("none", 4), ("gain", 4)])
-def test_injected_reference_decodes_bit_exactly(kind, gop):
+@pytest.mark.parametrize(
+    ("kind", "gop", "refresh"),
+    [
+        ("none", 1, 0),
+        ("gain", 1, 0),
+        ("similarity", 1, 0),
+        ("none", 4, 0),
+        ("gain", 4, 0),
+        ("none", 4, 5),
+        ("none", 1, 4),
+    ],
+)
+def test_injected_reference_decodes_bit_exactly(kind, gop, refresh):
     rng = np.random.default_rng(1)
     w, h, n = 64, 48, 11  # with gop 4: key 0, p 1, anchors 5, 9 and a one-frame last chunk (10)
     _ref, base = _i420(rng, w, h)
     frames = [np.roll(_i420(rng, w, h, base, k % 4)[0], 1, axis=1) for k in range(n)]
     refs = [_i420(rng, w, h, base, k % 4)[0] for k in range(n)]
     params = {"none": None, "gain": [70, -300], "similarity": [4096, 10, 30, -10, 4096, -20]}[kind]
+    asked = []
 
-    def baseline(k):
-        return codec.apply_alignment(vpx.pad_i420(refs[k], w, h), w, h, kind, params)
+    def baseline(k):  # frame 5 has none (the car stood still): with refresh 5 its run starts with a keyframe
+        asked.append(k)
+        return None if k == 5 else codec.apply_alignment(vpx.pad_i420(refs[k], w, h), w, h, kind, params)
 
     recon = []
-    settings = vpx.EncoderSettings(q=30, speed=6, gop=gop)
+    settings = vpx.EncoderSettings(q=30, speed=6, gop=gop, refresh=refresh)
     enc = codec.encode_segment(iter(frames), w, h, settings, baseline, keep_recon=recon)
+    sb = codec.parse(enc.blob)
+    runs = codec.substreams(n, refresh)
+    assert sb.starts == tuple(codec.START_KEY if k0 == 5 else codec.START_BASELINE for k0, _ in runs)
     decoded = list(codec.decode_segment(enc.blob, baseline))
-    assert len(decoded) == n == len(enc.bytes_per_frame)
+    assert len(decoded) == n == len(enc.bytes_per_frame) == enc.frames
     assert all(np.array_equal(a, b) for a, b in zip(decoded, recon, strict=True))
-    # Decoding from a later frame gives the same pictures (display order, whatever the coding order).
-    later = codec.decode_segment(enc.blob, baseline, 6)
-    assert all(np.array_equal(a, b) for a, b in zip(later, recon[6:], strict=True))
+    # Decoding from a later frame gives the same pictures (display order, whatever the coding order)
+    # and, with random-access runs, never touches the frames of the runs before.
+    asked.clear()
+    later = list(codec.decode_segment(enc.blob, baseline, 6))
+    assert len(later) == n - 6 and all(np.array_equal(a, b) for a, b in zip(later, recon[6:], strict=True))
+    first = codec.run_start(enc.blob, 6)
+    assert first == (5 if refresh == 5 else 4 if refresh == 4 else 0) and min(asked) >= first
     # Without the baseline the pictures are wrong: the reference really is used.
     blind = list(codec.decode_segment(enc.blob))
     assert not all(np.array_equal(a, b) for a, b in zip(blind, recon, strict=True))
@@ -215,38 +235,71 @@ def test_injected_reference_decodes_bit_exactly(kind, gop):
         assert np.mean(np.abs(src[:h].astype(int) - rec[:h].astype(int))) < 12
 
 
-@pytest.mark.parametrize("gop", [1, 2, 3, 8])
-@pytest.mark.parametrize("n", [1, 2, 3, 9, 10, 17, 30])
-def test_coding_plan_codes_every_frame_once_after_its_references(n, gop):
-    plan = codec.coding_plan(n, gop)
-    assert sorted(k for k, _, _ in plan) == list(range(n))
+def test_a_run_started_from_the_baseline_is_cheaper_than_a_keyframe():
+    """The first frame of a joint run is predicted from the older drive (the thesis' inter-view P
+    picture) instead of coded intra: with a baseline close to it, it must cost far less."""
+    rng = np.random.default_rng(7)
+    w, h = 64, 48
+    frames, refs = [], []
+    for _ in range(3):
+        ref, base = _i420(rng, w, h)
+        refs.append(ref)
+        frames.append(_i420(rng, w, h, base, 1)[0])
+    settings = vpx.EncoderSettings(q=20, speed=6, refresh=2)
+
+    def baseline(k):
+        return vpx.pad_i420(refs[k], w, h)
+
+    joint = codec.encode_segment(iter(frames), w, h, settings, baseline)
+    plain = codec.encode_segment(iter(frames), w, h, settings)
+    assert codec.parse(joint.blob).starts == (1, 1) and codec.parse(plain.blob).starts == (0, 0)
+    for k in (0, 2):  # the run starts: grey keyframe + ra frame vs a keyframe
+        assert joint.bytes_per_frame[k] < 0.5 * plain.bytes_per_frame[k]
+
+
+@pytest.mark.parametrize(("gop", "refresh"), [(1, 0), (2, 0), (3, 0), (8, 0), (1, 4), (3, 7), (8, 8), (8, 32)])
+@pytest.mark.parametrize("n", [1, 2, 3, 9, 10, 17, 30, 70])
+def test_coding_plan_codes_every_frame_once_after_its_references(n, gop, refresh):
+    runs = codec.substreams(n, refresh)
+    starts = [i % 2 for i in range(len(runs))]  # alternate keyframe / baseline starts
+    plan = codec.coding_plan(n, gop, refresh, starts)
+    assert sorted(k for k, role, _ in plan if role != "dummy") == list(range(n))
+    assert sum(role == "dummy" for _, role, _ in plan) == sum(starts)
+    run_of = {k: i for i, (k0, m) in enumerate(runs) for k in range(k0, k0 + m)}
     done: set[int] = set()
-    anchors = [k for k, role, _ in plan if role in ("key", "p", "anchor")]
-    for k, role, last in plan:
-        if role == "key":
-            assert k == 0 and not done
+    anchors = [k for k, role, _ in plan if role in ("key", "ra", "p", "anchor")]
+    for pos, (k, role, last) in enumerate(plan):
+        k0 = runs[run_of[k]][0]
+        if role == "dummy":
+            assert k == k0 and starts[run_of[k]] == 1 and plan[pos + 1] == (k, "ra", None)
+            continue
+        if role in ("key", "ra"):  # a run starts clean: nothing of it coded yet
+            assert k == k0 and not done & set(range(k0, k0 + runs[run_of[k]][1]))
+            assert (role == "ra") == (starts[run_of[k]] == 1)
         elif role == "p":
-            assert k - 1 in done and (gop == 1 or k == 1)
+            assert k - 1 in done and run_of[k - 1] == run_of[k] and (gop == 1 or k == k0 + 1)
         elif role == "anchor":
-            assert last in done and last < k and k - last <= gop
-        else:  # between: LAST holds the previous frame, ALTREF the anchor ahead
-            assert role == "between" and k - 1 in done
+            assert last in done and last < k and k - last <= gop and run_of[last] == run_of[k]
+        else:  # between: LAST holds the previous frame, ALTREF the anchor ahead (same run)
+            assert role == "between" and k - 1 in done and run_of[k - 1] == run_of[k]
             ahead = min(a for a in anchors if a > k)
-            assert ahead in done
+            assert ahead in done and run_of[ahead] == run_of[k]
         done.add(k)
-    if gop > 1 and n > 2:
-        assert max(k for k, role, _ in plan if role == "anchor") == n - 1
+    for k0, m in runs:
+        if gop > 1 and m > 2:
+            assert max(k for k, role, _ in plan if role == "anchor" and run_of[k] == run_of[k0]) == k0 + m - 1
 
 
-def test_version_1_low_delay_blobs_still_decode():
+def test_version_1_and_2_low_delay_blobs_still_decode():
     rng = np.random.default_rng(4)
     frames = [_i420(rng, 32, 32)[0] for _ in range(4)]
     recon = []
     blob = codec.encode_segment(iter(frames), 32, 32, vpx.EncoderSettings(q=40, speed=8), keep_recon=recon).blob
-    old = bytearray(blob)
-    old[4:6] = (1).to_bytes(2, "little")  # version 1 ...
-    old[codec._HEADER.size - 1] = 0  # ... had no GOP byte
-    assert all(np.array_equal(a, b) for a, b in zip(codec.decode_segment(bytes(old)), recon, strict=True))
+    sb = codec.parse(blob)
+    for version, gop in ((1, 0), (2, 1)):  # version 1 had no GOP, versions 1-2 no run layout
+        head = codec._HEADER.pack(codec.MAGIC, version, 32, 32, 32, 32, len(sb.packets), sb.q, gop)
+        old = head + b"".join(len(p).to_bytes(4, "little") + p for p in sb.packets)
+        assert all(np.array_equal(a, b) for a, b in zip(codec.decode_segment(old), recon, strict=True))
 
 
 def test_damaged_blob_is_refused():

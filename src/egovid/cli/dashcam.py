@@ -52,6 +52,14 @@ def ingest(
         help="Anchor spacing in frames: every GOP-th frame is coded first and the frames between "
         "refer to it (and to the older drive) at a coarser quantiser (+12). 1 = low delay.",
     ),
+    random_access: int = typer.Option(
+        24,
+        min=0,
+        max=65535,
+        help="Random-access period in frames: decoding can begin at every N-th frame (a keyframe "
+        "for a first drive, a frame predicted from the older drive alone for a later one). "
+        "0 = only at the start (smallest files, no seeking).",
+    ),
     aligner: str = typer.Option("orb", help="orb (default) | orb-plain (thesis only) | seqslam | gps."),
     baseline_align: str = typer.Option("none", help="Global alignment of the reference: none | gain | similarity."),
     savings: bool = typer.Option(True, help="Also encode standalone to measure the saving (doubles encoding)."),
@@ -83,6 +91,7 @@ def ingest(
         speed=speed,
         realtime=realtime,
         gop=gop,
+        refresh=random_access,
         aligner=aligner,
         baseline_align=baseline_align,
         measure_savings=savings,
@@ -161,14 +170,29 @@ def extract(
     archive: Path = typer.Argument(..., help="Archive folder."),
     drive: str = typer.Argument(..., help="Drive name or id."),
     out: Path = typer.Option(..., "-o", "--out", help="Output video: .mkv (FFV1) or .mp4 (lossless H.264)."),
+    start: float = typer.Option(None, "--start", min=0.0, help="Write from this time (seconds into the drive)."),
+    duration: float = typer.Option(None, "--duration", min=0.0, help="Write this many seconds (default: to the end)."),
 ) -> None:
-    """Write a drive back as a video, bit-exact with what the encoder reconstructed."""
+    """Write a drive back as a video, bit-exact with what the encoder reconstructed.
+
+    With --start/--duration only that stretch is decoded: decoding begins at the nearest
+    random-access point before it (every 24 frames by default), in this drive and in the older
+    drives it was coded against.
+    """
+    from egovid.errors import EgovidError
+
     ar = _open(archive)
     check_output(out)
     d = ar.drive_or_fail(drive)
+    f0 = round((start or 0.0) * d.fps)
+    f1 = d.frames if duration is None else min(d.frames, f0 + max(1, round(duration * d.fps)))
+    if f0 >= d.frames:
+        raise EgovidError(
+            f"--start {start} s is past the end of drive {d.name} ({d.frames / d.fps:.1f} s)", "choose an earlier start"
+        )
     with staged_progress() as cb:
-        ar.extract(drive, out, progress=lambda k, n: cb("extract", k, n))
-    console.print(f"{d.name}: {d.frames} frames → {out}")
+        ar.extract(drive, out, progress=lambda k, n: cb("extract", k, n), frames=(f0, f1))
+    console.print(f"{d.name}: frames {f0}-{f1 - 1} of {d.frames} → {out}")
 
 
 @app.command("report")

@@ -72,6 +72,9 @@ class IngestOptions:
     ``q``: VP9 quantiser 0-63 (lower = better quality; frames between anchors use ``q + 12``);
     ``speed``: libvpx cpu-used; ``realtime``: realtime instead of good-quality deadline; ``gop``:
     anchor spacing in frames (8, the default; 1 = low delay, every frame from the one before);
+    ``refresh``: random-access period in frames (a drive can be decoded from every ``refresh``-th
+    frame on: a keyframe for a root drive, a frame predicted from the older drive alone for a joint
+    one; 0 = from the start only);
     ``aligner``: orb (thesis' ORB search, smoothed and photometrically refined; the default) |
     orb-plain (the thesis' search alone) | seqslam | gps;
     ``baseline_align``: none | gain | similarity (global alignment of the baseline);
@@ -83,6 +86,7 @@ class IngestOptions:
     speed: int = 5
     realtime: bool = False
     gop: int = 8
+    refresh: int = 24
     aligner: str = "orb"
     baseline_align: str = "none"
     measure_savings: bool = True
@@ -270,17 +274,26 @@ class Archive:
         atomic_write_text(self.root / MARKER, json.dumps(self.meta, indent=1))
 
     # -- decoding -------------------------------------------------------------------------------
-    def baselines(self, seg: Segment) -> Callable[[int], np.ndarray] | None:
-        """The baseline builder of a joint segment (None for an intra segment)."""
+    def baselines(self, seg: Segment, first: int = 0) -> Callable[[int], np.ndarray] | None:
+        """The baseline builder of a joint segment (None for an intra segment), for decoding that
+        begins at the segment's frame ``first``."""
         if seg.mode != "joint":
             return None
         return baseline_builder(
-            DriveFrames(self, int(seg.ref_drive_id)), seg.refmap, seg.params["width"], seg.params["height"], seg.align
+            DriveFrames(self, int(seg.ref_drive_id)),
+            seg.refmap,
+            seg.params["width"],
+            seg.params["height"],
+            seg.align,
+            first,
         )
 
     def decode(self, seg: Segment, start: int = 0) -> Iterator[np.ndarray]:
-        """Unpadded I420 frames of a segment, from its frame ``start``."""
-        return codec.decode_segment(self.get_blob(seg.blob), self.baselines(seg), start)
+        """Unpadded I420 frames of a segment, from its frame ``start``: decoding begins at the
+        random-access run holding it, so neither this drive nor its reference is decoded from the
+        beginning."""
+        blob = self.get_blob(seg.blob)
+        return codec.decode_segment(blob, self.baselines(seg, codec.run_start(blob, start)), start)
 
     def drive_or_fail(self, key: str):
         d = self.catalogue.drive(key)
@@ -289,28 +302,49 @@ class Archive:
             raise EgovidError(f"no drive {key!r} in {self.root}", f"drives in the archive: {names}")
         return d
 
-    def extract(self, key: str, out: str | os.PathLike, progress: Callable[[int, int], None] | None = None) -> Path:
+    def extract(
+        self,
+        key: str,
+        out: str | os.PathLike,
+        progress: Callable[[int, int], None] | None = None,
+        frames: tuple[int, int] | None = None,
+    ) -> Path:
         """Write a drive back as a lossless video (MKV/FFV1, or MP4 with lossless H.264), checking
-        every segment against the encoder's reconstruction digest."""
+        every whole segment against the encoder's reconstruction digest.
+
+        ``frames``: (first, end) frame numbers of the drive to write (end exclusive; default all).
+        Decoding starts at the random-access run holding ``first``, in this drive and in the
+        drives it refers to; a partly written segment is checked by the content hashes of the
+        bitstreams it reads (its reconstruction digest covers the whole segment)."""
         d = self.drive_or_fail(key)
         out = Path(out)
         ext = out.suffix.lower()
         if ext not in (".mkv", ".mp4"):
             raise EgovidError(f"cannot write {out.name}", "use an .mkv (FFV1) or .mp4 (lossless H.264) output")
+        f0, f1 = frames if frames is not None else (0, d.frames)
+        if not 0 <= f0 < f1 <= d.frames:
+            raise EgovidError(
+                f"frames {f0}-{f1 - 1} are not in drive {d.name} (frames 0-{d.frames - 1})",
+                "choose a range inside the drive (see `egovid dashcam show`)",
+            )
         codec_name, options = ("ffv1", None) if ext == ".mkv" else ("libx264", {"qp": "0", "preset": "ultrafast"})
-        done = 0
+        done, total = 0, f1 - f0
         with VideoWriter(
             out, d.width, d.height, d.fps, codec=codec_name, crf=None, preset=None, pix_fmt="yuv420p", options=options
         ) as w:
             for seg in self.catalogue.segments(d.id):
+                if seg.frame_end <= f0 or seg.frame_start >= f1:
+                    continue
+                a, b = max(f0, seg.frame_start) - seg.frame_start, min(f1, seg.frame_end) - seg.frame_start
+                whole = (a, b) == (0, seg.frame_end - seg.frame_start)
                 h = hashlib.sha256()
-                for frame in self.decode(seg):
+                for frame in itertools.islice(self.decode(seg, a), b - a):
                     codec.digest_update(h, frame)
                     w.write_i420(frame, done / d.fps)
                     done += 1
                     if progress:
-                        progress(done, d.frames)
-                if h.hexdigest() != seg.params.get("recon_digest"):
+                        progress(done, total)
+                if whole and h.hexdigest() != seg.params.get("recon_digest"):
                     raise EgovidError(
                         f"drive {d.name} frames {seg.frame_start}-{seg.frame_end} do not decode to what was encoded",
                         "the archive or one of its reference drives is damaged",
@@ -328,6 +362,7 @@ class Archive:
         """Add a drive (see the module docstring); raises :class:`EgovidError` without changing the
         archive if anything is wrong."""
         opts = options or IngestOptions()
+        vpx.EncoderSettings(q=opts.q, speed=opts.speed, gop=opts.gop, refresh=opts.refresh)  # checks them
         if opts.aligner not in ALIGNERS:
             raise EgovidError(f"unknown aligner {opts.aligner!r}", f"choose one of {', '.join(ALIGNERS)}")
         if opts.baseline_align not in BASELINE_ALIGN:
@@ -514,7 +549,12 @@ class Archive:
         w, h = info.width, info.height
         k_total = f1 - f0
         settings = vpx.EncoderSettings(
-            q=opts.q, speed=opts.speed, realtime=opts.realtime, fps=round(info.fps) or 30, gop=opts.gop
+            q=opts.q,
+            speed=opts.speed,
+            realtime=opts.realtime,
+            fps=round(info.fps) or 30,
+            gop=opts.gop,
+            refresh=opts.refresh,
         )
         # Pass 1: illumination features and (if a reference may exist) ORB features.
         candidates = [
@@ -617,6 +657,7 @@ class Archive:
             "speed": opts.speed,
             "realtime": opts.realtime,
             "gop": opts.gop,
+            "refresh": opts.refresh,
             "recon_digest": enc.recon_digest,
             "psnr_y": enc.psnr_y,
             "aligner": opts.aligner,
@@ -749,14 +790,15 @@ class Archive:
 
 
 def baseline_builder(
-    ref_frames: DriveFrames, refmap: np.ndarray, width: int, height: int, align: dict
+    ref_frames: DriveFrames, refmap: np.ndarray, width: int, height: int, align: dict, first: int = 0
 ) -> Callable[[int], np.ndarray]:
     """Frame k's baseline: the decoded reference frame ``refmap[k]``, padded, globally aligned by
-    the stored parameters. The same function serves the encoder and every later decoder."""
+    the stored parameters. The same function serves the encoder and every later decoder (``first``:
+    the first frame that will be asked for, where decoding begins)."""
     pw, ph = vpx.padded_size(width, height)
     kind, params = align.get("kind", "none"), align.get("params")
     ahead: dict[int, np.ndarray] = {}
-    state = {"hi": -1}
+    state = {"hi": first - 1}
 
     def build(k: int) -> np.ndarray:
         # Coding order visits an anchor before the frames behind it. Fetch every reference frame up

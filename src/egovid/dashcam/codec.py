@@ -10,7 +10,8 @@ so it must be bit-identical on both sides — it is built only from decoded refe
 Optional global alignment of the baseline (measured in ``benchmarks/dashcam_bdrate.py``):
 ``gain`` (luma ``a·Y + b``, a and b in 1/64 steps) and ``similarity`` (a 4-parameter warp of all
 planes, fixed-point). The blob format is ``EGV9`` + header + length-prefixed packets in coding
-order (version 1: low delay only; version 2 adds the GOP length in the last header byte).
+order (version 1: low delay only; version 2 adds the GOP length in the last header byte; version 3
+the random-access layout).
 
 **Coding structure.** With ``gop`` = 1 every frame predicts from the one before (low delay). The
 thesis coded HEVC hierarchical B pictures and its per-picture savings (Fig. 16.2) fall from 48 % for
@@ -24,6 +25,14 @@ controls are used, so the decoder repeats the same loads, and the buffers are ar
 load overwrites another slot (libvpx copies into whatever buffer a slot points to, and after the
 keyframe every slot points to the same one): GOLDEN is never refreshed, anchors refresh only ALTREF,
 the other frames only LAST. The encoder holds G frames (look-ahead), the decoder G + 1.
+
+**Random access.** A segment is coded in independently decodable *runs* of ``refresh`` frames
+(:func:`substreams`; 0 = one run). A run of an intra segment starts with a keyframe. A run of a
+joint segment starts like the thesis' dependent view at an intra period (its "P" pictures, Fig.
+16.2, which save the most): its first frame (``ra``) is predicted from its baseline alone, after a
+grey keyframe that is decoded but never shown (VP9 decoders need a keyframe to start; the grey one
+costs a few bytes). Decoding can begin at any run, so seeking needs neither this drive's earlier
+frames nor the older drive's. Blob format version 3 stores the period and how each run starts.
 """
 
 from __future__ import annotations
@@ -41,8 +50,10 @@ from egovid.dashcam import vpx
 from egovid.errors import EgovidError
 
 MAGIC = b"EGV9"
-VERSION = 2
+VERSION = 3
 _HEADER = struct.Struct("<4sHHHHHIBB")
+_LAYOUT = struct.Struct("<HI")  # version 3: random-access period, number of runs; then a start byte per run
+START_KEY, START_BASELINE = 0, 1
 
 
 @dataclass
@@ -56,65 +67,138 @@ class EncodedSegment:
     bytes_per_frame: list[int] = field(default_factory=list)
 
 
-def pack(width: int, height: int, q: int, packets: list[bytes], gop: int = 1) -> bytes:
-    """A segment blob: header + length-prefixed packets (in coding order)."""
+@dataclass(frozen=True)
+class SegmentBlob:
+    """A parsed segment blob. ``starts``: how each independently decodable run begins
+    (:data:`START_KEY`: a keyframe; :data:`START_BASELINE`: an undisplayed grey keyframe, then the
+    first frame predicted from its baseline alone). ``packets`` are in coding order."""
+
+    width: int
+    height: int
+    q: int
+    gop: int
+    refresh: int
+    starts: tuple[int, ...]
+    packets: list[bytes]
+
+    @property
+    def frames(self) -> int:
+        return len(self.packets) - sum(1 for s in self.starts if s == START_BASELINE)
+
+    def plan(self) -> list[tuple[int, str, int | None]]:
+        return coding_plan(self.frames, self.gop, self.refresh, self.starts)
+
+
+def pack(
+    width: int,
+    height: int,
+    q: int,
+    packets: list[bytes],
+    gop: int = 1,
+    refresh: int = 0,
+    starts: tuple[int, ...] | list[int] = (START_KEY,),
+) -> bytes:
+    """A segment blob: header + run layout + length-prefixed packets (in coding order)."""
     pw, ph = vpx.padded_size(width, height)
     head = _HEADER.pack(MAGIC, VERSION, width, height, pw, ph, len(packets), q, gop)
+    head += _LAYOUT.pack(refresh, len(starts)) + bytes(starts)
     return head + b"".join(struct.pack("<I", len(p)) + p for p in packets)
 
 
 def unpack(blob: bytes) -> tuple[int, int, int, list[bytes]]:
     """(width, height, q, packets) of a segment blob; raises on damage."""
-    w, h, q, _gop, packets = unpack_full(blob)
-    return w, h, q, packets
+    sb = parse(blob)
+    return sb.width, sb.height, sb.q, sb.packets
 
 
-def unpack_full(blob: bytes) -> tuple[int, int, int, int, list[bytes]]:
-    """(width, height, q, gop, packets in coding order) of a segment blob; raises on damage."""
+def _damaged(what: str = "is truncated") -> EgovidError:
+    return EgovidError(f"segment blob {what}", "the archive is damaged; restore it from a backup")
+
+
+def parse(blob: bytes) -> SegmentBlob:
+    """The parsed segment blob (versions 1-3); raises :class:`EgovidError` on damage."""
     if len(blob) < _HEADER.size:
-        raise EgovidError("segment blob is truncated", "the archive is damaged; restore it from a backup")
+        raise _damaged()
     magic, version, w, h, _pw, _ph, n, q, gop = _HEADER.unpack_from(blob, 0)
-    if magic != MAGIC or version not in (1, 2) or (version == 1 and gop != 0) or (version == 2 and gop < 1):
+    if magic != MAGIC or version not in (1, 2, 3) or (version == 1 and gop != 0) or (version > 1 and gop < 1):
         raise EgovidError("segment blob has an unknown format", "the archive is damaged or from another version")
     gop = max(gop, 1)
-    packets, off = [], _HEADER.size
+    off = _HEADER.size
+    refresh, starts = 0, (START_KEY,)
+    if version >= 3:
+        if off + _LAYOUT.size > len(blob):
+            raise _damaged()
+        refresh, runs = _LAYOUT.unpack_from(blob, off)
+        off += _LAYOUT.size
+        if off + runs > len(blob):
+            raise _damaged()
+        starts = tuple(blob[off : off + runs])
+        off += runs
+    packets = []
     for _ in range(n):
         if off + 4 > len(blob):
-            raise EgovidError("segment blob is truncated", "the archive is damaged; restore it from a backup")
+            raise _damaged()
         (size,) = struct.unpack_from("<I", blob, off)
         if off + 4 + size > len(blob):
-            raise EgovidError("segment blob is truncated", "the archive is damaged; restore it from a backup")
+            raise _damaged()
         packets.append(blob[off + 4 : off + 4 + size])
         off += 4 + size
     if off != len(blob):
-        raise EgovidError("segment blob has trailing data", "the archive is damaged")
-    return w, h, q, gop, packets
+        raise _damaged("has trailing data")
+    sb = SegmentBlob(w, h, q, gop, refresh, starts, packets)
+    if any(s not in (START_KEY, START_BASELINE) for s in starts) or len(starts) != len(substreams(sb.frames, refresh)):
+        raise _damaged("has an inconsistent layout")
+    return sb
 
 
-def coding_plan(n: int, gop: int) -> list[tuple[int, str, int | None]]:
-    """Coding order of an ``n``-frame segment: (frame, role, frame LAST must hold or None).
-
-    ``gop`` = 1 is plain low delay (roles ``key`` then ``p``). For G > 1: ``key`` 0, ``p`` 1, then
-    per chunk a = 1, 1 + G, ...: the anchor b = min(a + G, n − 1) (LAST loaded with frame a), then
-    a + 1 … b − 1 as ``between`` frames (LAST already holds the previous frame)."""
+def substreams(n: int, refresh: int) -> list[tuple[int, int]]:
+    """(first frame, frame count) of the independently decodable runs of an ``n``-frame segment:
+    one per ``refresh`` frames (0: a single run). Decoding may start at any run."""
     if n <= 0:
         return []
-    if gop <= 1:
-        return [(0, "key", None)] + [(k, "p", None) for k in range(1, n)]
-    plan: list[tuple[int, str, int | None]] = [(0, "key", None)]
-    if n > 1:
-        plan.append((1, "p", None))
-    a = 1
-    while a < n - 1:
-        b = min(a + gop, n - 1)
-        plan.extend(_chunk_plan(a, b))
-        a = b
+    r = refresh if refresh > 0 else n
+    return [(k0, min(r, n - k0)) for k0 in range(0, n, r)]
+
+
+def coding_plan(
+    n: int, gop: int, refresh: int = 0, starts: tuple[int, ...] | list[int] | None = None
+) -> list[tuple[int, str, int | None]]:
+    """Coding order of an ``n``-frame segment: (frame, role, frame LAST must hold or None).
+
+    Per run (:func:`substreams`) of m frames from k0: its start — ``key`` k0, or (``starts[i]`` =
+    :data:`START_BASELINE`) an undisplayed grey keyframe ``dummy`` k0 and then ``ra`` k0, the frame
+    predicted from its baseline alone — then, with ``gop`` = 1, ``p`` frames (low delay); for G > 1
+    ``p`` k0 + 1 and per chunk a = k0 + 1, k0 + 1 + G, ...: the anchor b = min(a + G, k0 + m − 1)
+    (LAST loaded with frame a), then a + 1 … b − 1 as ``between`` frames (LAST already holds the
+    previous frame)."""
+    plan: list[tuple[int, str, int | None]] = []
+    for i, (k0, m) in enumerate(substreams(n, refresh)):
+        if starts is not None and starts[i] == START_BASELINE:
+            plan += [(k0, "dummy", None), (k0, "ra", None)]
+        else:
+            plan.append((k0, "key", None))
+        if gop <= 1:
+            plan += [(k, "p", None) for k in range(k0 + 1, k0 + m)]
+            continue
+        if m > 1:
+            plan.append((k0 + 1, "p", None))
+        a, end = k0 + 1, k0 + m - 1
+        while a < end:
+            b = min(a + gop, end)
+            plan.extend(_chunk_plan(a, b))
+            a = b
     return plan
 
 
 def _chunk_plan(a: int, b: int) -> list[tuple[int, str, int | None]]:
     """One chunk after anchor ``a``: the anchor ``b`` (LAST loaded with frame a), then a+1 … b−1."""
     return [(b, "anchor", a)] + [(j, "between", None) for j in range(a + 1, b)]
+
+
+def run_start(blob: bytes, k: int) -> int:
+    """The first frame of the run holding frame ``k``: where decoding towards ``k`` begins."""
+    sb = parse(blob)
+    return max((k0 for k0, _ in substreams(sb.frames, sb.refresh) if k0 <= k), default=0)
 
 
 # -- baselines ----------------------------------------------------------------------------------
@@ -183,13 +267,18 @@ def encode_segment(
 ) -> EncodedSegment:
     """Encode unpadded I420 frames; ``baselines(k)`` gives frame k's padded baseline (or None).
 
-    Frames are read as a stream (``settings.gop`` of them ahead); the digest, PSNR, per-frame sizes,
-    ``keep_recon`` and ``progress`` follow display order whatever the coding order."""
+    Frames are read as a stream (``settings.gop`` of them ahead), in runs of ``settings.refresh``
+    frames (:func:`substreams`); a run whose first frame has a baseline starts from it (``ra``)
+    instead of a keyframe. The digest, PSNR, per-frame sizes, ``keep_recon`` and ``progress``
+    follow display order whatever the coding order."""
     vpx.self_test()
     pw, ph = vpx.padded_size(width, height)
     enc = vpx.VP9Encoder(pw, ph, settings)
     gop = settings.gop
+    q_between = min(63, settings.q + settings.gop_dq)
+    grey = np.full((ph * 3 // 2, pw), 128, np.uint8)
     packets: list[bytes] = []
+    starts: list[int] = []
     size_of: dict[int, int] = {}
     pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     h = hashlib.sha256()
@@ -197,7 +286,7 @@ def encode_segment(
 
     def finish(k: int, frame: np.ndarray, pkt: bytes) -> np.ndarray:
         packets.append(pkt)
-        size_of[k] = len(pkt)
+        size_of[k] = size_of.get(k, 0) + len(pkt)
         padded_rec = enc.reconstruction()
         pending[k] = (frame, vpx.crop_i420(padded_rec, width, height))
         while acc["next"] in pending:
@@ -216,55 +305,81 @@ def encode_segment(
     def base(k: int) -> np.ndarray | None:
         return baselines(k) if baselines is not None else None
 
+    def pad(frame: np.ndarray) -> np.ndarray:
+        return vpx.pad_i420(frame, pw, ph)
+
     try:
         it = iter(frames)
-        if gop <= 1:
-            for k, frame in enumerate(it):
-                padded = vpx.pad_i420(frame, pw, ph)
-                finish(k, frame, enc.encode(padded, base(k) if k > 0 else None))
-        else:
-            first = next(it, None)
-            if first is not None:
-                finish(0, first, enc.encode_structured(vpx.pad_i420(first, pw, ph), "key"))
-                second = next(it, None)
-                if second is not None:
-                    a, a_rec = 1, finish(1, second, enc.encode_structured(vpx.pad_i420(second, pw, ph), "p"))
-                    q_between = min(63, settings.q + settings.gop_dq)
-                    while chunk := list(itertools.islice(it, gop)):  # frames a+1 … b
-                        b = a + len(chunk)
-                        for k, role, _ in _chunk_plan(a, b):
-                            frame = vpx.pad_i420(chunk[k - a - 1], pw, ph)
-                            if role == "anchor":
-                                b_rec = finish(k, chunk[-1], enc.encode_structured(frame, role, base(k), a_rec))
-                            else:
-                                finish(k, chunk[k - a - 1], enc.encode_structured(frame, role, base(k), q=q_between))
-                        a, a_rec = b, b_rec
+        k0 = 0
+        while True:
+            run = itertools.islice(it, settings.refresh) if settings.refresh else it
+            first = next(run, None)
+            if first is None:
+                break
+            b0 = base(k0)
+            if b0 is not None:  # the run starts from the older drive instead of a keyframe
+                starts.append(START_BASELINE)
+                dummy = enc.encode_structured(grey, "key")
+                packets.append(dummy)
+                size_of[k0] = len(dummy)
+                finish(k0, first, enc.encode_structured(pad(first), "ra", b0))
+            else:
+                starts.append(START_KEY)
+                finish(k0, first, enc.encode_structured(pad(first), "key"))
+            n = 1
+            if gop <= 1:
+                for n, frame in enumerate(run, 2):
+                    k = k0 + n - 1
+                    finish(k, frame, enc.encode_structured(pad(frame), "p", base(k)))
+            elif (second := next(run, None)) is not None:
+                a = k0 + 1
+                a_rec = finish(a, second, enc.encode_structured(pad(second), "p"))
+                n = 2
+                while chunk := list(itertools.islice(run, gop)):  # frames a+1 … b
+                    b = a + len(chunk)
+                    for k, role, _ in _chunk_plan(a, b):
+                        if role == "anchor":
+                            b_rec = finish(k, chunk[-1], enc.encode_structured(pad(chunk[-1]), role, base(k), a_rec))
+                        else:
+                            frame = chunk[k - a - 1]
+                            finish(k, frame, enc.encode_structured(pad(frame), role, base(k), q=q_between))
+                    a, a_rec = b, b_rec
+                    n += len(chunk)
+            k0 += n
     finally:
         enc.close()
     if not packets:
         raise EgovidError("a segment with no frames cannot be encoded")
     mse = acc["se"] / max(acc["pix"], 1)
     psnr = 10 * np.log10(255.0**2 / mse) if mse > 0 else 100.0
-    sizes = [size_of[k] for k in range(len(packets))]
-    blob = pack(width, height, settings.q, packets, gop)
-    return EncodedSegment(blob, len(packets), h.hexdigest(), float(psnr), sizes)
+    sizes = [size_of[k] for k in range(k0)]
+    blob = pack(width, height, settings.q, packets, gop, settings.refresh, starts)
+    return EncodedSegment(blob, k0, h.hexdigest(), float(psnr), sizes)
 
 
 def decode_segment(
     blob: bytes, baselines: Callable[[int], np.ndarray | None] | None = None, start: int = 0
 ) -> Iterator[np.ndarray]:
-    """Yield the unpadded I420 frames of a segment in display order (from frame ``start``; earlier
-    frames are decoded but not yielded, since decoding must begin at the keyframe)."""
+    """Yield the unpadded I420 frames of a segment in display order from frame ``start``. Decoding
+    begins at the run holding ``start`` (:func:`run_start`); frames of that run before ``start`` are
+    decoded but not yielded."""
     vpx.self_test()
-    w, h, _q, gop, packets = unpack_full(blob)
+    sb = parse(blob)
+    w, h, gop = sb.width, sb.height, sb.gop
+    skip = max((k0 for k0, _ in substreams(sb.frames, sb.refresh) if k0 <= start), default=0)
     pw, ph = vpx.padded_size(w, h)
     dec = vpx.VP9Decoder(pw, ph)
     pending: dict[int, np.ndarray] = {}
     held: dict[int, np.ndarray] = {}
-    nxt = 0
+    nxt = skip
     try:
-        for (k, role, last_k), pkt in zip(coding_plan(len(packets), gop), packets, strict=True):
-            injected = baselines is not None and (role in ("anchor", "between") or (gop <= 1 and k > 0))
+        for (k, role, last_k), pkt in zip(sb.plan(), sb.packets, strict=True):
+            if k < skip:
+                continue
+            if role == "dummy":
+                dec.decode(pkt)
+                continue
+            injected = baselines is not None and (role in ("ra", "anchor", "between") or (role == "p" and gop <= 1))
             golden = baselines(k) if injected else None
             last = held.pop(last_k) if last_k is not None else None
             out = dec.decode(pkt, golden, last)

@@ -47,6 +47,7 @@ VP8E_SET_STATIC_THRESHOLD = 17
 VP9E_SET_TILE_COLUMNS = 33
 VP9E_SET_AQ_MODE = 36
 VP9E_SET_ROW_MT = 55
+VP8_EFLAG_NO_REF_LAST = 1 << 16
 VP8_EFLAG_NO_UPD_LAST = 1 << 18
 VP8_EFLAG_NO_REF_ARF = 1 << 21
 VP8_EFLAG_NO_UPD_GF = 1 << 22
@@ -329,7 +330,8 @@ class EncoderSettings:
     """VP9 settings: fixed quantiser ``q`` (0-63), ``speed`` (cpu-used), ``realtime`` deadline,
     coding structure ``gop`` (1 = low delay; G > 1 = every G-th frame an *anchor* predicted from the
     anchor before it, the frames between coded after it from the previous frame and the anchor
-    ahead, at quantiser ``q + gop_dq``; see :mod:`egovid.dashcam.codec`)."""
+    ahead, at quantiser ``q + gop_dq``; see :mod:`egovid.dashcam.codec`) and ``refresh``, the
+    random-access period in frames (0 = only the first frame; see :func:`codec.substreams`)."""
 
     q: int = 32
     speed: int = 4
@@ -337,8 +339,13 @@ class EncoderSettings:
     fps: int = 30
     gop: int = 1
     gop_dq: int = 12
+    refresh: int = 0
 
     def __post_init__(self) -> None:
+        if self.refresh != 0 and not 2 <= self.refresh <= 65535:
+            raise EgovidError(
+                f"random-access period {self.refresh} frames is outside 2-65535", "use 0 (none) or e.g. 32"
+            )
         if not 1 <= self.gop <= 64:
             raise EgovidError(f"GOP length {self.gop} is outside 1-64", "use 1 (low delay) or 8")
         if not 0 <= self.gop_dq <= 63:
@@ -412,14 +419,20 @@ class VP9Encoder(_Codec):
     ) -> bytes:
         """Encode one padded I420 frame of a hierarchical structure (see :mod:`codec`).
 
-        ``role``: ``"key"``; ``"p"`` (from LAST, refreshes LAST; never injected — right after the
-        keyframe every reference slot shares one buffer); ``"anchor"`` (LAST is first loaded with
-        ``last``, the previous anchor; the result refreshes ALTREF only); ``"between"`` (from LAST =
-        the previous frame and ALTREF = the anchor ahead; refreshes LAST). ``golden`` is injected
-        into GOLDEN, which is never refreshed. The decoder must repeat the same loads in the same
-        order (:meth:`VP9Decoder.decode`)."""
+        ``role``: ``"key"``; ``"ra"`` (a random-access point: right after a keyframe, predicted
+        from GOLDEN = ``golden`` alone, refreshes LAST); ``"p"`` (from LAST, refreshes LAST; with
+        ``golden`` only at low delay — right after a keyframe every reference slot shares one
+        buffer, so the load shows in LAST too); ``"anchor"`` (LAST is first loaded with ``last``,
+        the previous anchor; the result refreshes ALTREF only); ``"between"`` (from LAST = the
+        previous frame and ALTREF = the anchor ahead; refreshes LAST). ``golden`` is injected into
+        GOLDEN, which is never refreshed. The decoder must repeat the same loads in the same order
+        (:meth:`VP9Decoder.decode`)."""
         if role == "key":
             flags = VPX_EFLAG_FORCE_KF
+        elif role == "ra":
+            if golden is None:
+                raise ValueError("a random-access frame needs the baseline in GOLDEN")
+            flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF | VP8_EFLAG_NO_REF_LAST | VP8_EFLAG_NO_REF_ARF
         elif role == "p":
             flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF | VP8_EFLAG_NO_REF_ARF
         elif role == "anchor":
@@ -428,8 +441,8 @@ class VP9Encoder(_Codec):
             flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF
         else:
             raise ValueError(f"unknown frame role {role!r}")
-        if role in ("key", "p") and (golden is not None or last is not None):
-            raise ValueError("no reference injection on the first two frames")
+        if (role == "key" and golden is not None) or (role in ("key", "ra", "p") and last is not None):
+            raise ValueError(f"no such reference load on a {role!r} frame")
         if last is not None:
             self.set_reference(last, VP8_LAST_FRAME)
         if golden is not None:
@@ -608,6 +621,19 @@ def self_test() -> str:
         enc.close()
         dec = VP9Decoder(w, h)
         ok = ok and all(np.array_equal(dec.decode(p, g, la), r) for p, g, la, r in coded)
+        dec.close()
+        # A random-access run of a joint segment: undisplayed grey keyframe, then a frame predicted
+        # from the injected baseline alone, then a P frame.
+        enc = VP9Encoder(w, h, EncoderSettings(q=20, speed=6))
+        run = [enc.encode_structured(np.full_like(frames[0], 128), "key")]
+        run.append(enc.encode_structured(frames[1], "ra", goldens[1]))
+        r1 = enc.reconstruction()
+        run.append(enc.encode_structured(frames[2], "p"))
+        r2 = enc.reconstruction()
+        enc.close()
+        dec = VP9Decoder(w, h)
+        dec.decode(run[0])
+        ok = ok and np.array_equal(dec.decode(run[1], goldens[1]), r1) and np.array_equal(dec.decode(run[2]), r2)
         dec.close()
     except EgovidError:
         raise

@@ -160,6 +160,8 @@ def test_bad_input_changes_nothing(archive, drives, tmp_path):
     assert_one_error(run_cli("dashcam", "ingest", root, video_a, "--gps", gps_a), "already in the archive")
     assert_one_error(run_cli("dashcam", "extract", root, "nobody", "-o", tmp_path / "x.mkv"), "no drive")
     assert_one_error(run_cli("dashcam", "ingest", tmp_path, video_a, "--gps", gps_a), "not an egovid archive")
+    args = ("dashcam", "ingest", root, video_a, "--gps", gps_a, "--name", "x", "--random-access", 1)
+    assert_one_error(run_cli(*args), "random-access period 1")
     assert _state(root) == before
 
 

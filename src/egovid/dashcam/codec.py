@@ -196,9 +196,15 @@ def _chunk_plan(a: int, b: int) -> list[tuple[int, str, int | None]]:
 
 
 def run_start(blob: bytes, k: int) -> int:
-    """The first frame of the run holding frame ``k``: where decoding towards ``k`` begins."""
-    sb = parse(blob)
-    return max((k0 for k0, _ in substreams(sb.frames, sb.refresh) if k0 <= k), default=0)
+    """The first frame of the run holding frame ``k``: where decoding towards ``k`` begins (reads
+    only the blob's header)."""
+    if len(blob) < _HEADER.size + _LAYOUT.size or _HEADER.unpack_from(blob, 0)[1] < 3:
+        return 0
+    return _run_start(_LAYOUT.unpack_from(blob, _HEADER.size)[0], k)
+
+
+def _run_start(refresh: int, k: int) -> int:
+    return k - k % refresh if refresh > 0 else 0
 
 
 # -- baselines ----------------------------------------------------------------------------------
@@ -366,7 +372,7 @@ def decode_segment(
     vpx.self_test()
     sb = parse(blob)
     w, h, gop = sb.width, sb.height, sb.gop
-    skip = max((k0 for k0, _ in substreams(sb.frames, sb.refresh) if k0 <= start), default=0)
+    skip = _run_start(sb.refresh, start)
     pw, ph = vpx.padded_size(w, h)
     dec = vpx.VP9Decoder(pw, ph)
     pending: dict[int, np.ndarray] = {}

@@ -344,7 +344,7 @@ class EncoderSettings:
     def __post_init__(self) -> None:
         if self.refresh != 0 and not 2 <= self.refresh <= 65535:
             raise EgovidError(
-                f"random-access period {self.refresh} frames is outside 2-65535", "use 0 (none) or e.g. 32"
+                f"random-access period {self.refresh} frames is outside 2-65535", "use 0 (none) or e.g. 24"
             )
         if not 1 <= self.gop <= 64:
             raise EgovidError(f"GOP length {self.gop} is outside 1-64", "use 1 (low delay) or 8")

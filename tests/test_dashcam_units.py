@@ -307,9 +307,9 @@ def test_damaged_blob_is_refused():
     frames = [_i420(rng, 32, 32)[0] for _ in range(2)]
     blob = codec.encode_segment(iter(frames), 32, 32, vpx.EncoderSettings(q=40, speed=8)).blob
     with pytest.raises(EgovidError, match="truncated"):
-        codec.unpack(blob[:-5])
+        codec.parse(blob[:-5])
     with pytest.raises(EgovidError, match="format"):
-        codec.unpack(b"XXXX" + blob[4:])
+        codec.parse(b"XXXX" + blob[4:])
 
 
 def test_seqslam_recovers_a_shifted_sequence():

@@ -105,12 +105,6 @@ def pack(
     return head + b"".join(struct.pack("<I", len(p)) + p for p in packets)
 
 
-def unpack(blob: bytes) -> tuple[int, int, int, list[bytes]]:
-    """(width, height, q, packets) of a segment blob; raises on damage."""
-    sb = parse(blob)
-    return sb.width, sb.height, sb.q, sb.packets
-
-
 def _damaged(what: str = "is truncated") -> EgovidError:
     return EgovidError(f"segment blob {what}", "the archive is damaged; restore it from a backup")
 

@@ -459,16 +459,7 @@ class VP9Encoder(_Codec):
         (Right after the keyframe every reference slot points to the keyframe's buffer, and
         ``VP8_SET_REFERENCE`` copies into that buffer: frame 1 therefore sees the baseline in LAST
         too. Both sides do the same, so decoding stays bit-exact.)"""
-        flags = 0
-        if self._pts == 0:
-            if golden is not None:
-                raise ValueError("no reference injection on the keyframe")
-            flags = VPX_EFLAG_FORCE_KF
-        elif golden is not None:
-            self.set_reference(golden, VP8_GOLD_FRAME)
-            flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF | VP8_EFLAG_NO_REF_ARF
-        self._recon_slot = VP8_LAST_FRAME
-        return self._encode(frame, flags)
+        return self.encode_structured(frame, "key" if self._pts == 0 else "p", golden)
 
     def _encode(self, frame: np.ndarray, flags: int) -> bytes:
         L = self.lib.lib

@@ -4,9 +4,10 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
-# System package: ffmpeg (the vid.stab peer of the stabiliser's tests and benchmark; it also brings
-# Debian's libvpx, a second VP9 build the dashcam codec can use via EGOVID_LIBVPX).
-APT_PACKAGES := ffmpeg
+# System packages: ffmpeg (the vid.stab peer of the stabiliser's tests and benchmark; it also brings
+# Debian's libvpx, a second VP9 build the dashcam codec can use via EGOVID_LIBVPX) and postgresql
+# (the server binaries: the tests start a throw-away server for the dashcam's PostgreSQL catalogue).
+APT_PACKAGES := ffmpeg postgresql
 
 .PHONY: help install sysdeps demo test lint bench clean
 
@@ -18,6 +19,7 @@ help:
 sysdeps:
 	@missing=""; \
 	command -v ffmpeg >/dev/null || missing="$$missing ffmpeg"; \
+	{ command -v initdb || ls /usr/lib/postgresql/*/bin/initdb; } >/dev/null 2>&1 || missing="$$missing postgresql"; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing system packages:$$missing"; \
 	  SUDO=$$([ "$$(id -u)" -eq 0 ] || echo sudo); \

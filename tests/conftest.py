@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import glob
+import os
+import pwd
+import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -48,3 +53,34 @@ def still_clip(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("clips") / "still.mp4"
     render_fpv(out, np.zeros((20, 3)), width=320, height=180)
     return out
+
+
+def _pg_tool(name: str) -> str | None:
+    found = shutil.which(name) or sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"))
+    return found if isinstance(found, str) else (found[-1] if found else None)
+
+
+@pytest.fixture(scope="session")
+def pg_url():
+    """A throw-away PostgreSQL server (initdb + pg_ctl; `make test` installs them), reachable on a
+    Unix socket only; yields its libpq URL. Run as the ``postgres`` user when the tests run as root,
+    since the server refuses to run as root."""
+    initdb, pg_ctl = _pg_tool("initdb"), _pg_tool("pg_ctl")
+    if not (initdb and pg_ctl):
+        pytest.skip("no PostgreSQL server binaries (make test installs the postgresql package)")
+    base = Path(tempfile.mkdtemp(prefix="egovid-pg-"))
+    as_user: list[str] = []
+    if os.geteuid() == 0:
+        pw = pwd.getpwnam("postgres")
+        os.chown(base, pw.pw_uid, pw.pw_gid)
+        as_user = ["runuser", "-u", "postgres", "--"]
+    data = base / "data"
+    opts = f"-k {base} -p 5432 -c listen_addresses='' -c fsync=off"
+    run = lambda *a: subprocess.run([*as_user, *map(str, a)], check=True, capture_output=True)  # noqa: E731
+    run(initdb, "-D", data, "-A", "trust", "-U", "postgres", "-E", "UTF8", "--no-sync")
+    run(pg_ctl, "-D", data, "-w", "-l", base / "server.log", "-o", opts, "start")
+    try:
+        yield f"postgresql://postgres@/postgres?host={base}&port=5432"
+    finally:
+        run(pg_ctl, "-D", data, "-m", "immediate", "stop")
+        shutil.rmtree(base, ignore_errors=True)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from egovid.dashcam import codec, vpx
-from egovid.dashcam.catalogue import SqliteCatalogue
+from egovid.dashcam.catalogue import PostgresCatalogue, SqliteCatalogue
 from egovid.dashcam.gps import project, read_track
 from egovid.dashcam.illumination import best_match, frame_features, rank_scores
 from egovid.dashcam.paths import match_path, resample, split_drive, split_points
@@ -135,8 +135,12 @@ def test_resample_keeps_ends_and_spacing():
     assert np.all(chords <= 21.0 / 5 + 1e-9) and np.all(chords > 2.5)
 
 
-def test_catalogue_transaction_rolls_back_and_rtree_finds_paths(tmp_path):
-    cat = SqliteCatalogue(tmp_path / "c.sqlite", create=True)
+@pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
+def test_catalogue_transaction_rolls_back_and_spatial_index_finds_paths(tmp_path, backend, request):
+    if backend == "sqlite":
+        cat = SqliteCatalogue(tmp_path / "c.sqlite", create=True)
+    else:
+        cat = PostgresCatalogue(request.getfixturevalue("pg_url"), "egovid_unit_test", create=True)
     with cat.transaction():
         d = cat.add_drive("a", "a.mp4", "a.gpx", 0.0, 30.0, 64, 48, 10)
         cat.add_path(_line(100), d)
@@ -148,6 +152,14 @@ def test_catalogue_transaction_rolls_back_and_rtree_finds_paths(tmp_path):
     assert len(cat.paths()) == 1
     assert cat.paths_near(240, -1, 260, 1) == [1]
     assert cat.paths_near(240, 900, 260, 1100) == []
+    assert cat.paths_near(495, 0, 600, 10) == [1]  # touching the last point's box counts
+    assert cat.paths_near(495.5, 0, 600, 10) == []
+    pid = cat.paths()[0].id
+    with cat.transaction():
+        cat.update_path(pid, _line(10, y=1000.0))  # moved: the index follows
+    assert cat.paths_near(240, -1, 260, 1) == [] and cat.paths_near(20, 990, 30, 1010) == [pid]
+    np.testing.assert_array_equal(cat.path(pid).points, _line(10, y=1000.0))
+    cat.close()
     assert project([40.0], [-86.0], (40.0, -86.0)).tolist() == [[0.0, 0.0]]
 
 

@@ -24,14 +24,23 @@ def _open(archive: Path):
 @app.command("init")
 def init(
     archive: Path = typer.Argument(..., help="Folder to create the archive in (new or empty)."),
-    db: str = typer.Option(None, "--db", help="Catalogue backend; the embedded SQLite is the default."),
+    db: str = typer.Option(
+        None,
+        "--db",
+        help="Catalogue database: leave out for the embedded SQLite file in the archive folder, or give "
+        "postgresql://USER@HOST[:PORT]/DATABASE to keep the catalogue in a new schema of that database "
+        "(the bitstreams stay in the folder; keep passwords in PGPASSWORD or ~/.pgpass, not in the URL).",
+    ),
 ) -> None:
     """Create an empty archive."""
     from egovid.dashcam.archive import Archive
+    from egovid.dashcam.catalogue import redact_url
     from egovid.dashcam.vpx import self_test
 
-    Archive.create(archive, db)
-    console.print(f"archive {archive} created (catalogue: SQLite; codec: {self_test()})")
+    ar = Archive.create(archive, db)
+    cat = ar.meta["catalogue"]
+    where = "SQLite" if cat["backend"] == "sqlite" else f"PostgreSQL {redact_url(cat['url'])}, schema {cat['schema']}"
+    console.print(f"archive {archive} created (catalogue: {where}; codec: {self_test()})")
 
 
 @app.command("ingest")

@@ -2,8 +2,9 @@
 
 Layout of an archive folder::
 
-    ARCHIVE/egovid-archive.json   marker (format version, origin of the metric plane)
-    ARCHIVE/catalogue.sqlite      drives, paths, sequences, segments (see catalogue.py)
+    ARCHIVE/egovid-archive.json   marker (format version, origin of the metric plane, catalogue)
+    ARCHIVE/catalogue.sqlite      drives, paths, sequences, segments (see catalogue.py); with
+                                  ``init --db postgresql://…`` these live in a PostgreSQL schema
     ARCHIVE/blobs/ab/abcdef...    segment bitstreams, named by their SHA-256
     ARCHIVE/.lock                 taken for the whole of an ingest
 
@@ -42,7 +43,7 @@ import numpy as np
 
 from egovid.dashcam import codec, vpx
 from egovid.dashcam.align import OrbScorer, align_orb, refine_photometric, small_gray, smooth_monotone, tiny
-from egovid.dashcam.catalogue import Catalogue, Segment, Sequence, SqliteCatalogue
+from egovid.dashcam.catalogue import Catalogue, Segment, Sequence, catalogue_settings, open_catalogue
 from egovid.dashcam.gps import GpsTrack, project, read_track
 from egovid.dashcam.illumination import best_match, frame_features
 from egovid.dashcam.paths import (
@@ -215,23 +216,28 @@ class Archive:
         if meta.get("format") != FORMAT_VERSION:
             raise EgovidError(f"archive format {meta.get('format')} is not supported", "upgrade egovid")
         self.meta = meta
-        self.catalogue: Catalogue = SqliteCatalogue(self.root / "catalogue.sqlite")
+        self.catalogue: Catalogue = open_catalogue(self.root, meta.get("catalogue"))
         self.blobs = self.root / "blobs"
 
     @classmethod
     def create(cls, root: str | os.PathLike, db: str | None = None) -> Archive:
-        """Create an empty archive at ``root`` (``db``: only the embedded SQLite for now)."""
+        """Create an empty archive at ``root``. ``db``: None or ``sqlite`` for the embedded SQLite
+        catalogue (``root/catalogue.sqlite``), or a ``postgresql://`` URL: the catalogue then lives
+        in a new schema of that database and only the bitstreams in ``root``."""
         root = Path(root)
-        if db not in (None, "", "sqlite") and not str(db).startswith("sqlite"):
-            raise EgovidError(f"catalogue backend {db!r} is not available", "use the default (SQLite)")
+        settings = catalogue_settings(db)
         if (root / MARKER).exists():
             raise EgovidError(f"{root} is already an egovid archive", "use it, or choose another folder")
         if root.exists() and any(root.iterdir()):
             raise EgovidError(f"{root} exists and is not empty", "give a new or empty folder")
+        if settings["backend"] != "sqlite":  # connect first: a bad URL leaves no folder behind
+            open_catalogue(root, settings, create=True).close()
         root.mkdir(parents=True, exist_ok=True)
         (root / "blobs").mkdir(exist_ok=True)
-        SqliteCatalogue(root / "catalogue.sqlite", create=True).close()
-        atomic_write_text(root / MARKER, json.dumps({"format": FORMAT_VERSION, "origin": None}, indent=1))
+        if settings["backend"] == "sqlite":
+            open_catalogue(root, settings, create=True).close()
+        meta = {"format": FORMAT_VERSION, "origin": None, "catalogue": settings}
+        atomic_write_text(root / MARKER, json.dumps(meta, indent=1))
         return cls(root)
 
     # -- storage --------------------------------------------------------------------------------

@@ -1,10 +1,13 @@
 """The archive's catalogue: drives, paths, path sequences and encoded segments.
 
-A small repository interface (:class:`Catalogue`) with an SQLite implementation
-(:class:`SqliteCatalogue`, the embedded default: one file, WAL journal, an R*Tree index over path
-chunks for spatial look-up). Every ingest runs inside one :meth:`Catalogue.transaction`, so a
-crash or an error leaves the catalogue as it was. Arrays (path points, per-frame path positions,
-alignment maps) are stored as little-endian binary blobs.
+A small repository interface (:class:`Catalogue`) with two implementations that share their SQL
+(:class:`_SqlCatalogue`): :class:`SqliteCatalogue`, the embedded default (one file, WAL journal,
+an R*Tree index over path chunks for spatial look-up), and :class:`PostgresCatalogue` (a schema of
+its own in a PostgreSQL database, a GiST index over the same chunk boxes), for archives shared by
+several machines. :func:`open_catalogue` picks one from the archive's settings. Every ingest runs
+inside one :meth:`Catalogue.transaction`, which also serialises writers, so a crash or an error
+leaves the catalogue as it was. Arrays (path points, per-frame path positions, alignment maps) are
+stored as little-endian binary blobs.
 
 Records:
 
@@ -21,13 +24,18 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 import json
+import re
 import sqlite3
+import uuid
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
+
+from egovid.errors import EgovidError
 
 SCHEMA_VERSION = 1
 
@@ -185,53 +193,56 @@ class Catalogue(ABC):
     def close(self) -> None: ...
 
 
-_DDL = """
+_TABLES = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS drives (
-  id INTEGER PRIMARY KEY, name TEXT NOT NULL UNIQUE, source TEXT, gps_source TEXT, created TEXT NOT NULL,
-  start_utc REAL NOT NULL, fps REAL NOT NULL, width INTEGER NOT NULL, height INTEGER NOT NULL,
+  id {ID}, name TEXT NOT NULL UNIQUE, source TEXT, gps_source TEXT, created TEXT NOT NULL,
+  start_utc {REAL} NOT NULL, fps {REAL} NOT NULL, width INTEGER NOT NULL, height INTEGER NOT NULL,
   frames INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS paths (
-  id INTEGER PRIMARY KEY, created_by INTEGER REFERENCES drives(id), points BLOB NOT NULL);
-CREATE VIRTUAL TABLE IF NOT EXISTS path_index USING rtree(id, min_x, max_x, min_y, max_y, +path_id INTEGER);
+  id {ID}, created_by {REF} REFERENCES drives(id), points {BLOB} NOT NULL);
 CREATE TABLE IF NOT EXISTS segments (
-  id INTEGER PRIMARY KEY, drive_id INTEGER NOT NULL REFERENCES drives(id), frame_start INTEGER NOT NULL,
+  id {ID}, drive_id {REF} NOT NULL REFERENCES drives(id), frame_start INTEGER NOT NULL,
   frame_end INTEGER NOT NULL, mode TEXT NOT NULL CHECK (mode IN ('intra', 'joint')),
-  ref_drive_id INTEGER REFERENCES drives(id), refmap BLOB, align TEXT, blob TEXT NOT NULL,
-  bytes INTEGER NOT NULL, params TEXT);
+  ref_drive_id {REF} REFERENCES drives(id), refmap {BLOB}, align TEXT, blob TEXT NOT NULL,
+  bytes {REF} NOT NULL, params TEXT);
 CREATE TABLE IF NOT EXISTS sequences (
-  id INTEGER PRIMARY KEY, drive_id INTEGER NOT NULL REFERENCES drives(id),
-  path_id INTEGER NOT NULL REFERENCES paths(id), frame_start INTEGER NOT NULL, frame_end INTEGER NOT NULL,
-  positions BLOB NOT NULL, illum BLOB, segment_id INTEGER NOT NULL REFERENCES segments(id));
+  id {ID}, drive_id {REF} NOT NULL REFERENCES drives(id),
+  path_id {REF} NOT NULL REFERENCES paths(id), frame_start INTEGER NOT NULL, frame_end INTEGER NOT NULL,
+  positions {BLOB} NOT NULL, illum {BLOB}, segment_id {REF} NOT NULL REFERENCES segments(id));
 CREATE INDEX IF NOT EXISTS seq_path ON sequences(path_id);
 CREATE INDEX IF NOT EXISTS seq_drive ON sequences(drive_id);
 CREATE INDEX IF NOT EXISTS seg_drive ON segments(drive_id);
 """
 
-_CHUNK = 16  # path points per R*Tree entry
+_CHUNK = 16  # path points per spatial-index entry
 
 
-class SqliteCatalogue(Catalogue):
-    """The embedded catalogue: one SQLite file (WAL journal, foreign keys, R*Tree index)."""
+class _SqlCatalogue(Catalogue):
+    """The catalogue's SQL, written once for both backends (``?`` placeholders, ``RETURNING id``).
+    A backend supplies the connection (:meth:`_q`, :meth:`transaction`), its column types, the
+    spatial index of path chunks and the query on it (``_NEAR``: xmin, ymin, xmax, ymax)."""
 
-    def __init__(self, path: str | Path, *, create: bool = False) -> None:
-        self.file = Path(path)
-        self._db = sqlite3.connect(str(self.file), isolation_level=None, timeout=30.0)
-        self._db.execute("PRAGMA foreign_keys = ON")
-        self._db.execute("PRAGMA journal_mode = WAL")
-        self._db.execute("PRAGMA synchronous = FULL")
-        self._depth = 0
-        if create:
-            with self.transaction():
-                for stmt in _DDL.split(";"):
-                    if stmt.strip():
-                        self._db.execute(stmt)
-                self.set_meta("schema_version", str(SCHEMA_VERSION))
+    _TYPES: ClassVar[dict[str, str]]
+    _INDEX_DDL: str
+    _NEAR: str
 
-    # -- transactions ---------------------------------------------------------------------------
+    def _ddl(self) -> list[str]:
+        sql = _TABLES.format(**self._TYPES) + self._INDEX_DDL
+        return [x for x in sql.split(";") if x.strip()]
+
+    _depth = 0
+
+    @abstractmethod
+    def _q(self, sql: str, args=()): ...
+
+    @abstractmethod
+    def _begin(self) -> None:
+        """Open a transaction that holds the catalogue's write lock until it ends."""
+
     @contextlib.contextmanager
     def transaction(self) -> Iterator[None]:
-        if self._depth:
+        if self._depth:  # nested: part of the transaction already open
             self._depth += 1
             try:
                 yield
@@ -239,19 +250,19 @@ class SqliteCatalogue(Catalogue):
                 self._depth -= 1
             return
         self._depth = 1
-        self._db.execute("BEGIN IMMEDIATE")
+        self._begin()
         try:
             yield
         except BaseException:
-            self._db.execute("ROLLBACK")
+            self._q("ROLLBACK")
             raise
         else:
-            self._db.execute("COMMIT")
+            self._q("COMMIT")
         finally:
             self._depth = 0
 
-    def _q(self, sql: str, args=()) -> sqlite3.Cursor:
-        return self._db.execute(sql, args)
+    def _insert(self, sql: str, args) -> int:
+        return int(self._q(sql + " RETURNING id", args).fetchone()[0])
 
     # -- meta -----------------------------------------------------------------------------------
     def get_meta(self, key: str) -> str | None:
@@ -267,12 +278,11 @@ class SqliteCatalogue(Catalogue):
     # -- drives ---------------------------------------------------------------------------------
     def add_drive(self, name, source, gps_source, start_utc, fps, width, height, frames) -> int:
         created = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
-        cur = self._q(
+        return self._insert(
             "INSERT INTO drives(name, source, gps_source, created, start_utc, fps, width, height, frames) "
             "VALUES(?,?,?,?,?,?,?,?,?)",
             (name, source, gps_source, created, start_utc, fps, width, height, frames),
         )
-        return int(cur.lastrowid)
 
     def _drive(self, row) -> Drive:
         return Drive(*row)
@@ -308,8 +318,7 @@ class SqliteCatalogue(Catalogue):
             )
 
     def add_path(self, points: np.ndarray, created_by: int | None) -> int:
-        cur = self._q("INSERT INTO paths(created_by, points) VALUES(?, ?)", (created_by, _blob(points, "<f8")))
-        pid = int(cur.lastrowid)
+        pid = self._insert("INSERT INTO paths(created_by, points) VALUES(?, ?)", (created_by, _blob(points, "<f8")))
         self._index_path(pid, np.asarray(points))
         return pid
 
@@ -330,20 +339,16 @@ class SqliteCatalogue(Catalogue):
         ]
 
     def paths_near(self, xmin, ymin, xmax, ymax) -> list[int]:
-        rows = self._q(
-            "SELECT DISTINCT path_id FROM path_index WHERE max_x >= ? AND min_x <= ? AND max_y >= ? AND min_y <= ?",
-            (xmin, xmax, ymin, ymax),
-        )
+        rows = self._q(self._NEAR, (xmin, ymin, xmax, ymax))
         return sorted(int(r[0]) for r in rows)
 
     # -- sequences ------------------------------------------------------------------------------
     def add_sequence(self, drive_id, path_id, frame_start, frame_end, positions, illum, segment_id) -> int:
-        cur = self._q(
+        return self._insert(
             "INSERT INTO sequences(drive_id, path_id, frame_start, frame_end, positions, illum, segment_id) "
             "VALUES(?,?,?,?,?,?,?)",
             (drive_id, path_id, frame_start, frame_end, _blob(positions, "<f4"), _blob(illum, "<f8"), segment_id),
         )
-        return int(cur.lastrowid)
 
     def update_sequence(self, seq_id, path_id, frame_start, frame_end, positions) -> None:
         self._q(
@@ -372,7 +377,7 @@ class SqliteCatalogue(Catalogue):
     def add_segment(
         self, drive_id, frame_start, frame_end, mode, ref_drive_id, refmap, align, blob, nbytes, params
     ) -> int:
-        cur = self._q(
+        return self._insert(
             "INSERT INTO segments(drive_id, frame_start, frame_end, mode, ref_drive_id, refmap, align, blob, bytes, "
             "params) VALUES(?,?,?,?,?,?,?,?,?,?)",
             (
@@ -388,7 +393,6 @@ class SqliteCatalogue(Catalogue):
                 json.dumps(params),
             ),
         )
-        return int(cur.lastrowid)
 
     def _segment(self, r) -> Segment:
         return Segment(
@@ -419,5 +423,133 @@ class SqliteCatalogue(Catalogue):
             raise KeyError(segment_id)
         return self._segment(row)
 
+
+class SqliteCatalogue(_SqlCatalogue):
+    """The embedded catalogue: one SQLite file (WAL journal, foreign keys, R*Tree index)."""
+
+    _TYPES: ClassVar[dict[str, str]] = {"ID": "INTEGER PRIMARY KEY", "REF": "INTEGER", "REAL": "REAL", "BLOB": "BLOB"}
+    _INDEX_DDL = (
+        "CREATE VIRTUAL TABLE IF NOT EXISTS path_index USING rtree(id, min_x, max_x, min_y, max_y, +path_id INTEGER)"
+    )
+    _NEAR = "SELECT DISTINCT path_id FROM path_index WHERE max_x >= ? AND max_y >= ? AND min_x <= ? AND min_y <= ?"
+
+    def __init__(self, path: str | Path, *, create: bool = False) -> None:
+        self.file = Path(path)
+        self._db = sqlite3.connect(str(self.file), isolation_level=None, timeout=30.0)
+        self._db.execute("PRAGMA foreign_keys = ON")
+        self._db.execute("PRAGMA journal_mode = WAL")
+        self._db.execute("PRAGMA synchronous = FULL")
+        if create:
+            with self.transaction():
+                for stmt in self._ddl():
+                    self._db.execute(stmt)
+                self.set_meta("schema_version", str(SCHEMA_VERSION))
+
+    def _begin(self) -> None:
+        self._db.execute("BEGIN IMMEDIATE")  # takes the write lock now: one ingest at a time
+
+    def _q(self, sql: str, args=()) -> sqlite3.Cursor:
+        return self._db.execute(sql, args)
+
     def close(self) -> None:
         self._db.close()
+
+
+class PostgresCatalogue(_SqlCatalogue):
+    """A catalogue in PostgreSQL (through psycopg 3): the archive's tables in a schema of their own,
+    so that several archives can share one database, and a GiST index over the path-chunk boxes.
+    ``url``: a libpq URL (``postgresql://USER@HOST:PORT/DB``; a password is better kept in
+    ``PGPASSWORD`` or ``~/.pgpass`` than in the URL, which the archive folder records)."""
+
+    _TYPES: ClassVar[dict[str, str]] = {
+        "ID": "BIGINT GENERATED BY DEFAULT AS IDENTITY PRIMARY KEY",
+        "REF": "BIGINT",
+        "REAL": "DOUBLE PRECISION",
+        "BLOB": "BYTEA",
+    }
+    _INDEX_DDL = """
+CREATE TABLE IF NOT EXISTS path_index (
+  id BIGINT GENERATED BY DEFAULT AS IDENTITY PRIMARY KEY, min_x DOUBLE PRECISION NOT NULL,
+  max_x DOUBLE PRECISION NOT NULL, min_y DOUBLE PRECISION NOT NULL, max_y DOUBLE PRECISION NOT NULL,
+  path_id BIGINT NOT NULL REFERENCES paths(id));
+CREATE INDEX IF NOT EXISTS path_index_box ON path_index USING gist (box(point(min_x, min_y), point(max_x, max_y)))
+"""
+    _NEAR = (
+        "SELECT DISTINCT path_id FROM path_index "
+        "WHERE box(point(min_x, min_y), point(max_x, max_y)) && box(point(?, ?), point(?, ?))"
+    )
+
+    def __init__(self, url: str, schema: str, *, create: bool = False) -> None:
+        try:
+            import psycopg
+        except ImportError:  # pragma: no cover - psycopg is a dependency
+            raise EgovidError("the PostgreSQL catalogue needs psycopg", "pip install 'psycopg[binary]'") from None
+        if not re.fullmatch(r"[a-z_][a-z0-9_]{0,62}", schema):
+            raise EgovidError(f"catalogue schema name {schema!r} is not valid", "use lower-case letters, digits, _")
+        self.url, self.schema = url, schema
+        try:
+            self._db = psycopg.connect(url, autocommit=True, connect_timeout=10)
+        except psycopg.Error as e:
+            why = (str(e).strip().splitlines() or ["no reason given"])[-1]
+            raise EgovidError(
+                f"cannot connect to the PostgreSQL catalogue at {redact_url(url)}: {why}",
+                "check the URL, that the server is running, and the credentials (PGPASSWORD or ~/.pgpass)",
+            ) from None
+        exists = self._db.execute("SELECT 1 FROM pg_namespace WHERE nspname = %s", (schema,)).fetchone()
+        if create and exists:
+            self.close()
+            raise EgovidError(f"schema {schema} already exists in {redact_url(url)}", "choose another archive")
+        if not create and not exists:
+            self.close()
+            raise EgovidError(
+                f"the catalogue (schema {schema}) is missing from {redact_url(url)}", "restore the database"
+            )
+        if create:
+            with self.transaction():
+                self._db.execute(f'CREATE SCHEMA "{schema}"')
+                self._db.execute(f'SET LOCAL search_path TO "{schema}"')
+                for stmt in self._ddl():
+                    self._db.execute(stmt)
+                self.set_meta("schema_version", str(SCHEMA_VERSION))
+        self._db.execute(f'SET search_path TO "{schema}"')
+
+    def _begin(self) -> None:
+        self._db.execute("BEGIN")
+        # One writer at a time per archive, as SQLite's BEGIN IMMEDIATE gives (released at the end).
+        self._db.execute("SELECT pg_advisory_xact_lock(hashtext(%s))", (self.schema,))
+
+    def _q(self, sql: str, args=()):
+        return self._db.execute(sql.replace("?", "%s"), args)
+
+    def close(self) -> None:
+        self._db.close()
+
+
+def redact_url(url: str) -> str:
+    """``url`` with any password replaced by ``***`` (for messages)."""
+    return re.sub(r"(://[^:/@]*:)[^@]*@", r"\1***@", url)
+
+
+def catalogue_settings(db: str | None) -> dict:
+    """The archive's catalogue settings for ``init --db``: None, ``sqlite`` → the embedded SQLite
+    file; ``postgresql://…`` (or ``postgres://…``) → PostgreSQL, in a new schema named for this
+    archive."""
+    if db in (None, "", "sqlite"):
+        return {"backend": "sqlite"}
+    if re.match(r"postgres(ql)?://", db):
+        return {"backend": "postgresql", "url": db, "schema": "egovid_" + uuid.uuid4().hex[:12]}
+    raise EgovidError(
+        f"catalogue {db!r} is not understood",
+        "give postgresql://USER@HOST[:PORT]/DATABASE, or leave --db out for the embedded SQLite",
+    )
+
+
+def open_catalogue(root: Path, settings: dict | None, *, create: bool = False) -> Catalogue:
+    """The catalogue of the archive at ``root`` from its settings (:func:`catalogue_settings`;
+    None = an archive from before the setting existed, i.e. SQLite)."""
+    backend = (settings or {}).get("backend", "sqlite")
+    if backend == "sqlite":
+        return SqliteCatalogue(Path(root) / "catalogue.sqlite", create=create)
+    if backend == "postgresql":
+        return PostgresCatalogue(settings["url"], settings["schema"], create=create)
+    raise EgovidError(f"catalogue backend {backend!r} is not supported by this egovid", "upgrade egovid")

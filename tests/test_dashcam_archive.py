@@ -197,6 +197,20 @@ def _kill_mid_ingest(root, video, gps) -> None:
     proc.wait()
 
 
+def _collect_the_killed_ingests_blobs(root) -> None:
+    """`gc` deletes the blobs the killed ingest left behind, and nothing a segment refers to."""
+    files = lambda: {p for p in (root / "blobs").rglob("*") if p.is_file()}  # noqa: E731
+    ar = Archive(root)
+    used = {g.blob for d in ar.catalogue.drives() for g in ar.catalogue.segments(d.id)}
+    orphans = {p for p in files() if p.name not in used}
+    assert orphans  # the killed ingest had written at least one bitstream
+    r = run_cli("dashcam", "gc", root, "--dry-run")
+    assert r.returncode == 0 and f"would delete {len(orphans)} " in r.stdout and files() >= orphans
+    r = run_cli("dashcam", "gc", root)
+    assert r.returncode == 0 and f"deleted {len(orphans)} " in r.stdout, r.stderr
+    assert {p.name for p in files()} == used
+
+
 def test_kill_during_ingest_leaves_archive_consistent(archive, drives, tmp_path):
     root, _ = archive
     before = _state(root)
@@ -206,6 +220,7 @@ def test_kill_during_ingest_leaves_archive_consistent(archive, drives, tmp_path)
     db = sqlite3.connect(str(root / "catalogue.sqlite"))
     assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     db.close()
+    _collect_the_killed_ingests_blobs(root)
     # Earlier drives are still extractable.
     ar = Archive(root)
     ar.extract("a", tmp_path / "a.mkv")
@@ -244,6 +259,7 @@ def test_postgresql_catalogue(archive, drives, pg_url, tmp_path):
     # kill -9 in the middle of an ingest: the server rolls the transaction back.
     _kill_mid_ingest(root, *drives["c"][:2])
     assert _state(root) == [2, 1, 2, 2]
+    _collect_the_killed_ingests_blobs(root)
     r = run_cli("dashcam", "list", root)
     assert r.returncode == 0 and "killed" not in r.stdout
     # A server that is not there, or a database kind egovid does not know: one error, no folder.

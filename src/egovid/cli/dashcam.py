@@ -204,6 +204,24 @@ def extract(
     console.print(f"{d.name}: frames {f0}-{f1 - 1} of {d.frames} → {out}")
 
 
+@app.command("gc")
+def gc(
+    archive: Path = typer.Argument(..., help="Archive folder."),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Only list what would be deleted."),
+) -> None:
+    """Delete bitstreams no drive refers to (left behind by an ingest that crashed or was killed).
+
+    They are harmless, only wasted space: a crashed ingest never changes the catalogue. Waits for
+    nothing: if an ingest is running, gc refuses and says so.
+    """
+    ar = _open(archive)
+    junk, size = ar.collect_garbage(dry_run=dry_run)
+    verb = "would delete" if dry_run else "deleted"
+    console.print(f"{verb} {len(junk)} unreferenced file(s), {size / 1024:.0f} KiB")
+    for p in junk:
+        console.print(f"  {p.relative_to(archive)}")
+
+
 @app.command("report")
 def report(
     archive: Path = typer.Argument(..., help="Archive folder."),

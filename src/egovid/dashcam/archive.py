@@ -270,6 +270,23 @@ class Archive:
             raise EgovidError(f"bitstream {sha[:12]} is corrupt", "restore the archive from a backup")
         return data
 
+    def collect_garbage(self, *, dry_run: bool = False) -> tuple[list[Path], int]:
+        """Delete the files under ``blobs/`` that no segment refers to — bitstreams and temporary
+        files left by an ingest that crashed or was killed — and return them with their total size
+        in bytes (``dry_run``: only list them). Holds the ingest lock and the catalogue's write lock
+        throughout, so an ingest running elsewhere never loses the blobs it has just written."""
+        with self.lock(), self.catalogue.transaction():
+            used = {g.blob for d in self.catalogue.drives() for g in self.catalogue.segments(d.id)}
+            junk = [p for p in sorted(self.blobs.rglob("*")) if p.is_file() and p.name not in used]
+            size = sum(p.stat().st_size for p in junk)
+            if not dry_run:
+                for p in junk:
+                    p.unlink()
+                for d in self.blobs.iterdir():
+                    if d.is_dir() and not any(d.iterdir()):
+                        d.rmdir()
+        return junk, size
+
     @property
     def origin(self) -> tuple[float, float] | None:
         o = self.meta.get("origin")

@@ -35,7 +35,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from egovid.dashcam import codec, vpx
-from egovid.dashcam.align import OrbScorer, align_orb, refine_photometric, small_gray, smooth_monotone, tiny
+from egovid.dashcam.align import OrbScorer, ScaleRefiner, align_orb, small_gray, smooth_monotone
 from egovid.dashcam.archive import Archive, IngestOptions, _project_on_polyline
 from egovid.dashcam.gps import project
 from egovid.dashcam.seqslam import align_seqslam, descriptor
@@ -202,10 +202,15 @@ def main() -> None:
             t0 = time.perf_counter()
             plain = align_orb(fb, fa, prior, tb.speed, np.abs(np.gradient(pa)) * 30.0, stopped, 30.0, sc).refmap
             t_orb = time.perf_counter() - t0
-            refined = refine_photometric(
-                smooth_monotone(plain), [tiny(f, w, h) for f in B], [tiny(f, w, h) for f in dec]
+            t0 = time.perf_counter()
+            rf = ScaleRefiner()
+            refined = rf.refine(
+                smooth_monotone(plain),
+                [rf.features(small_gray(f, w, h)) for f in B],
+                [rf.features(small_gray(f, w, h)) for f in dec],
+                stopped,
             )
-            refined = np.where(stopped, np.maximum.accumulate(refined), refined)
+            t_refine = time.perf_counter() - t0
             t0 = time.perf_counter()
             seq = align_seqslam(
                 np.stack([descriptor(small_gray(f, w, h)) for f in B]),
@@ -218,7 +223,7 @@ def main() -> None:
                 "pair": name,
                 "frames": len(B),
                 "align_error_frames": {k: float(np.mean(np.abs(v - oracle))) for k, v in maps.items() if k != "oracle"},
-                "align_seconds": {"orb-plain": t_orb, "seqslam": t_seq},
+                "align_seconds": {"orb-plain": t_orb, "orb refinement": t_refine, "seqslam": t_seq},
             }
             kinds = ("gain", "similarity") if set_name == "day" and not quick else ()
             sim_params = similarity_params(B, dec, refined, w, h, sc) if kinds else None

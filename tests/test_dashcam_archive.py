@@ -106,6 +106,23 @@ def test_extract_in_a_fresh_process_is_bit_exact(archive, drives, tmp_path):
     f0 = round(2.0 * fps)
     got = [f.image for f in iter_frames(part, i420=True)]
     assert len(got) == round(fps) and all(np.array_equal(a, b) for a, b in zip(got, frames[f0:], strict=False))
+    # Each run of a partial extract is checked against its own digest: a wrong digest for the run
+    # holding frame 60 (in a copy of the archive) fails the stretch that needs it, not the others.
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    cp = Archive(copy)
+    seg = next(g for g in segs if g.frame_start <= 60 < g.frame_end)
+    k = (60 - seg.frame_start) // seg.params["refresh"]
+    assert len(seg.params["run_digests"]) == -(-(seg.frame_end - seg.frame_start) // seg.params["refresh"])
+    seg.params["run_digests"][k] = "0" * codec.RUN_DIGEST_CHARS
+    cp.catalogue._q("UPDATE segments SET params = ? WHERE id = ?", (json.dumps(seg.params), seg.id))
+    r = run_cli("dashcam", "extract", copy, "b", "-o", tmp_path / "bad.mp4", "--start", 60 / fps, "--duration", 0.1)
+    assert_one_error(r, "do not decode to what was encoded")
+    assert not (tmp_path / "bad.mp4").exists()
+    r = run_cli("dashcam", "extract", copy, "b", "-o", tmp_path / "ok.mp4", "--start", 0, "--duration", 1.0)
+    assert r.returncode == 0, r.stderr
     r = run_cli("dashcam", "extract", root, "b", "-o", tmp_path / "late.mkv", "--start", 1e4)
     assert_one_error(r, "past the end")
     assert not (tmp_path / "late.mkv").exists()

@@ -3,6 +3,7 @@ splitting, catalogue transactions, illumination features, stops, the VP9 referen
 SeqSLAM."""
 
 import datetime as dt
+import hashlib
 
 import numpy as np
 import pytest
@@ -232,6 +233,14 @@ def test_injected_reference_decodes_bit_exactly(kind, gop, refresh):
     decoded = list(codec.decode_segment(enc.blob, baseline))
     assert len(decoded) == n == len(enc.bytes_per_frame) == enc.frames
     assert all(np.array_equal(a, b) for a, b in zip(decoded, recon, strict=True))
+    # One digest per random-access run (none for a single run), each over that run's pictures.
+    want = []
+    for k0, m in runs if refresh else []:
+        hr = hashlib.sha256()
+        for f in recon[k0 : k0 + m]:
+            hr.update(f.tobytes())
+        want.append(hr.hexdigest()[: codec.RUN_DIGEST_CHARS])
+    assert enc.run_digests == want
     # Decoding from a later frame gives the same pictures (display order, whatever the coding order)
     # and, with random-access runs, never touches the frames of the runs before.
     asked.clear()
@@ -357,3 +366,48 @@ def test_baselines_fetch_the_older_drive_forward_in_coding_order():
         if role in ("anchor", "between"):
             assert int(build(k)[0, 0]) == refmap[k] % 256  # the right frame, whatever the order
     assert rec.asked == sorted(rec.asked)
+
+
+def _zoomed(img, z, dx=0.0):
+    """A 320x180 view of ``img`` magnified by ``z`` about (160, 70), shifted right by ``dx`` px:
+    what a forward-moving camera sees (up to parallax), sideways offset included."""
+    import cv2
+
+    m = np.array([[z, 0.0, (1 - z) * 160.0 + dx], [0.0, z, (1 - z) * 70.0]])
+    return cv2.warpAffine(cv2.resize(img, (320, 180)), m, (320, 180), flags=cv2.INTER_LINEAR)
+
+
+def test_vertical_scale_measures_zoom_and_ignores_sideways_shift():
+    from egovid.dashcam.align import ScaleRefiner, vertical_log_scale
+    from egovid.synth.photos import photo
+
+    img = photo("astronaut")
+    img = img if img.ndim == 2 else img.mean(axis=2).astype(np.uint8)
+    rf = ScaleRefiner()
+    a = rf.features(_zoomed(img, 1.0))
+    for z, dx in ((1.05, 0.0), (0.97, 0.0), (1.04, -5.0)):
+        assert abs(vertical_log_scale(a, rf.features(_zoomed(img, z, dx))) - np.log(z)) < 0.003
+    assert abs(vertical_log_scale(a, rf.features(_zoomed(img, 1.0, 6.0)))) < 0.002
+
+
+def test_scale_refiner_finds_the_frame_level_with_the_new_one():
+    """Reference frames every unit of road, new frames every 1.12 units from 3.1 on (and 4 px to
+    the side); the matches start up to 2 frames off and must end on the nearest reference frame,
+    the first and last frames included."""
+    from egovid.dashcam.align import ScaleRefiner
+    from egovid.synth.photos import photo
+
+    img = photo("astronaut")
+    img = img if img.ndim == 2 else img.mean(axis=2).astype(np.uint8)
+    zoom = lambda t: float(np.exp(0.02 * t))  # noqa: E731 - magnification after t units of road
+    stopped = np.zeros(24, bool)
+    stopped[12:16] = True  # a stop: the camera stays where it is
+    t_new = 3.1 + np.concatenate([[0.0], np.cumsum(np.where(stopped[1:], 0.0, 1.12))])
+    rf = ScaleRefiner()
+    ref = [rf.features(_zoomed(img, zoom(j))) for j in range(30)]
+    new = [rf.features(_zoomed(img, zoom(t), dx=4.0)) for t in t_new]
+    truth = np.round(t_new).astype(int)
+    start = truth + np.random.default_rng(0).integers(-2, 3, len(truth))
+    got = rf.refine(start, new, ref, stopped)
+    assert np.mean(got == truth) >= 0.9 and np.max(np.abs(got - truth)) <= 1
+    assert np.all(got[12:16] == got[11]) and np.all(np.diff(got) >= 0)

@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 
 from egovid.dashcam import codec, vpx
-from egovid.dashcam.align import OrbScorer, align_orb, refine_photometric, small_gray, smooth_monotone, tiny
+from egovid.dashcam.align import OrbScorer, ScaleRefiner, align_orb, small_gray, smooth_monotone
 from egovid.dashcam.catalogue import Catalogue, Segment, Sequence, catalogue_settings, open_catalogue
 from egovid.dashcam.gps import GpsTrack, project, read_track
 from egovid.dashcam.illumination import best_match, frame_features
@@ -76,7 +76,7 @@ class IngestOptions:
     ``refresh``: random-access period in frames (a drive can be decoded from every ``refresh``-th
     frame on: a keyframe for a root drive, a frame predicted from the older drive alone for a joint
     one; 0 = from the start only);
-    ``aligner``: orb (thesis' ORB search, smoothed and photometrically refined; the default) |
+    ``aligner``: orb (thesis' ORB search, smoothed and refined by vertical image scale; the default) |
     orb-plain (the thesis' search alone) | seqslam | gps;
     ``baseline_align``: none | gain | similarity (global alignment of the baseline);
     ``measure_savings``: also encode each joint piece standalone to report the saving;
@@ -333,12 +333,13 @@ class Archive:
         frames: tuple[int, int] | None = None,
     ) -> Path:
         """Write a drive back as a lossless video (MKV/FFV1, or MP4 with lossless H.264), checking
-        every whole segment against the encoder's reconstruction digest.
+        the pictures against the encoder's reconstruction: every whole segment against its digest,
+        and a partly written one run by run (each random-access run has its own digest; the runs
+        at the ends of the stretch are decoded whole for it).
 
         ``frames``: (first, end) frame numbers of the drive to write (end exclusive; default all).
         Decoding starts at the random-access run holding ``first``, in this drive and in the
-        drives it refers to; a partly written segment is checked by the content hashes of the
-        bitstreams it reads (its reconstruction digest covers the whole segment)."""
+        drives it refers to."""
         d = self.drive_or_fail(key)
         out = Path(out)
         ext = out.suffix.lower()
@@ -358,21 +359,48 @@ class Archive:
             for seg in self.catalogue.segments(d.id):
                 if seg.frame_end <= f0 or seg.frame_start >= f1:
                     continue
-                a, b = max(f0, seg.frame_start) - seg.frame_start, min(f1, seg.frame_end) - seg.frame_start
-                whole = (a, b) == (0, seg.frame_end - seg.frame_start)
-                h = hashlib.sha256()
-                for frame in itertools.islice(self.decode(seg, a), b - a):
-                    codec.digest_update(h, frame)
+                for frame in self._checked_frames(d.name, seg, max(f0, seg.frame_start), min(f1, seg.frame_end)):
                     w.write_i420(frame, done / d.fps)
                     done += 1
                     if progress:
                         progress(done, total)
-                if whole and h.hexdigest() != seg.params.get("recon_digest"):
-                    raise EgovidError(
-                        f"drive {d.name} frames {seg.frame_start}-{seg.frame_end} do not decode to what was encoded",
-                        "the archive or one of its reference drives is damaged",
-                    )
         return out
+
+    def _checked_frames(self, drive: str, seg: Segment, f0: int, f1: int) -> Iterator[np.ndarray]:
+        """Frames ``f0`` … ``f1 − 1`` (drive numbering) of a segment, checked against the encoder's
+        reconstruction: run by run where the segment has per-run digests (the runs at the ends
+        of the stretch are decoded whole for it), else by the segment digest when all of it is
+        written. A mismatch raises; the video writer then leaves no output behind."""
+        n = seg.frame_end - seg.frame_start
+        a, b = f0 - seg.frame_start, f1 - seg.frame_start
+        refresh = int(seg.params.get("refresh") or 0)
+        runs = seg.params.get("run_digests") or []
+        damaged = EgovidError(
+            f"drive {drive} frames {seg.frame_start}-{seg.frame_end} do not decode to what was encoded",
+            "the archive or one of its reference drives is damaged",
+        )
+        if refresh and len(runs) == -(-n // refresh):
+            k = a - a % refresh
+            h = hashlib.sha256()
+            for frame in self.decode(seg, k):
+                codec.digest_update(h, frame)
+                if a <= k < b:
+                    yield frame
+                k += 1
+                if k % refresh == 0 or k == n:
+                    if h.hexdigest()[: codec.RUN_DIGEST_CHARS] != runs[(k - 1) // refresh]:
+                        raise damaged
+                    if k >= b:
+                        return
+                    h = hashlib.sha256()
+            return
+        # No per-run digests (one run, or an archive written before they existed).
+        h = hashlib.sha256()
+        for frame in itertools.islice(self.decode(seg, a), b - a):
+            codec.digest_update(h, frame)
+            yield frame
+        if (a, b) == (0, n) and h.hexdigest() != seg.params.get("recon_digest"):
+            raise damaged
 
     # -- ingest ---------------------------------------------------------------------------------
     def ingest(
@@ -589,8 +617,8 @@ class Archive:
         candidates = [
             s for s in candidates if (cand_drives[s.drive_id].width, cand_drives[s.drive_id].height) == (w, h)
         ]
-        scorer = OrbScorer()
-        new_feats, new_desc, new_tiny, illum = [], [], [], []
+        scorer, refiner = OrbScorer(), ScaleRefiner()
+        new_feats, new_desc, new_fine, illum = [], [], [], []
         for _ in range(k_total):
             frame = next(reader1).image
             g = small_gray(frame, w, h)
@@ -598,7 +626,8 @@ class Archive:
             if candidates:
                 if opts.aligner.startswith("orb"):
                     new_feats.append(scorer.features(g))
-                    new_tiny.append(tiny(frame, w, h))
+                    if opts.aligner == "orb":
+                        new_fine.append(refiner.features(g))
                 elif opts.aligner == "seqslam":
                     from egovid.dashcam.seqslam import descriptor
 
@@ -624,11 +653,7 @@ class Archive:
             if opts.aligner == "gps":
                 local = np.clip(np.round(prior), 0, m - 1).astype(np.int64)
             else:
-                ref_gray, ref_tiny = [], []
-                for j in range(m):
-                    fr = ref_frames.get(ref_seq.frame_start + j)
-                    ref_gray.append(small_gray(fr, w, h))
-                    ref_tiny.append(tiny(fr, w, h))
+                ref_gray = [small_gray(ref_frames.get(ref_seq.frame_start + j), w, h) for j in range(m)]
                 if opts.aligner.startswith("orb"):
                     ref_feats = [scorer.features(g) for g in ref_gray]
                     ref_speed = np.gradient(ref_seq.positions.astype(float)) * ref_drive.fps
@@ -643,10 +668,8 @@ class Archive:
                         scorer,
                     )
                     if opts.aligner == "orb":
-                        res.refmap = refine_photometric(smooth_monotone(res.refmap), new_tiny, ref_tiny)
-                        for k in range(1, k_total):
-                            if stopped[k]:
-                                res.refmap[k] = res.refmap[k - 1]
+                        ref_fine = [refiner.features(g) for g in ref_gray]
+                        res.refmap = refiner.refine(smooth_monotone(res.refmap), new_fine, ref_fine, stopped)
                 else:
                     from egovid.dashcam.seqslam import align_seqslam, descriptor
 
@@ -656,7 +679,7 @@ class Archive:
                             res.refmap[k] = res.refmap[k - 1]
                 local = res.refmap
                 fallbacks = res.prior_fallbacks
-                del ref_gray, ref_tiny
+                del ref_gray
             refmap = local + ref_seq.frame_start
             if opts.baseline_align != "none":
                 align = self._estimate_alignment(opts.baseline_align, video, f0, f1, refmap, ref_frames, w, h, scorer)
@@ -682,6 +705,7 @@ class Archive:
             "gop": opts.gop,
             "refresh": opts.refresh,
             "recon_digest": enc.recon_digest,
+            "run_digests": enc.run_digests,
             "psnr_y": enc.psnr_y,
             "aligner": opts.aligner,
             "standalone_bytes": standalone,

@@ -65,6 +65,9 @@ class EncodedSegment:
     recon_digest: str
     psnr_y: float
     bytes_per_frame: list[int] = field(default_factory=list)
+    # SHA-256 (first RUN_DIGEST_CHARS hex digits) of each random-access run's pictures; none
+    # when the segment is one run (recon_digest covers it)
+    run_digests: list[str] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -256,6 +259,11 @@ def digest_update(h, frame: np.ndarray) -> None:
     h.update(np.ascontiguousarray(frame).tobytes())
 
 
+RUN_DIGEST_CHARS = 16  # 64 bits of SHA-256 per run: ample to catch damage, 16 bytes per 24 frames
+
+
+
+
 def encode_segment(
     frames: Iterator[np.ndarray],
     width: int,
@@ -282,9 +290,12 @@ def encode_segment(
     size_of: dict[int, int] = {}
     pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     h = hashlib.sha256()
+    run_h = hashlib.sha256()  # the current random-access run's pictures (with settings.refresh > 0)
+    run_digests: list[str] = []
     acc = {"se": 0.0, "pix": 0, "next": 0}
 
     def finish(k: int, frame: np.ndarray, pkt: bytes) -> np.ndarray:
+        nonlocal run_h
         packets.append(pkt)
         size_of[k] = size_of.get(k, 0) + len(pkt)
         padded_rec = enc.reconstruction()
@@ -298,6 +309,11 @@ def encode_segment(
             if keep_recon is not None:
                 keep_recon.append(rec)
             acc["next"] += 1
+            if settings.refresh:
+                digest_update(run_h, rec)
+                if acc["next"] % settings.refresh == 0:
+                    run_digests.append(run_h.hexdigest()[:RUN_DIGEST_CHARS])
+                    run_h = hashlib.sha256()
             if progress is not None:
                 progress(acc["next"])
         return padded_rec
@@ -350,11 +366,13 @@ def encode_segment(
         enc.close()
     if not packets:
         raise EgovidError("a segment with no frames cannot be encoded")
+    if settings.refresh and k0 % settings.refresh:
+        run_digests.append(run_h.hexdigest()[:RUN_DIGEST_CHARS])
     mse = acc["se"] / max(acc["pix"], 1)
     psnr = 10 * np.log10(255.0**2 / mse) if mse > 0 else 100.0
     sizes = [size_of[k] for k in range(k0)]
     blob = pack(width, height, settings.q, packets, gop, settings.refresh, starts)
-    return EncodedSegment(blob, k0, h.hexdigest(), float(psnr), sizes)
+    return EncodedSegment(blob, k0, h.hexdigest(), float(psnr), sizes, run_digests)
 
 
 def decode_segment(

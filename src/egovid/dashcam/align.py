@@ -220,8 +220,9 @@ class ScaleRefiner:
     For a new frame, the vertical log scale (:func:`vertical_log_scale`) to the reference frames
     within ``radius`` of its match grows with the reference index; a least-squares line through
     it crosses zero where the older camera stood level with the new one. The crossings are median
-    (5 frames) and mean (``window`` frames) filtered, rounded and kept monotone; frames with fewer
-    than 3 measured scales keep their match, stopped frames the previous one. Uses its own ORB
+    (5 frames) and local-line (``window`` frames) filtered, rounded, kept monotone and inside the
+    reference sequence; frames with fewer than 3 measured scales keep their match, stopped frames
+    take the previous one. Uses its own ORB
     (1000 key points, OpenCV's default pyramid) on the 320-pixel-wide grey frames: the scale needs
     more and finer-scaled points than the inlier count of the search does."""
 
@@ -258,8 +259,8 @@ class ScaleRefiner:
             if len(js) >= 3:
                 slope, icpt = np.polyfit(np.array(js, float), np.array(ls), 1)
                 if slope > 1e-4:
-                    x[k] = float(np.clip(-icpt / slope, refmap[k] - r, refmap[k] + r))
+                    x[k] = float(np.clip(-icpt / slope, js[0], js[-1]))
         for k in range(1, len(x)):
             if stopped[k]:
                 x[k] = x[k - 1]
-        return smooth_monotone(x, self.window, median=5, stopped=stopped)
+        return np.clip(smooth_monotone(x, self.window, median=5, stopped=stopped), 0, m - 1)

@@ -29,6 +29,7 @@ accordingly (``benchmarks/dashcam_bdrate.py``; docs/dashcam.md).
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import cv2
@@ -228,7 +229,6 @@ class ScaleRefiner:
 
     def __init__(self, n_features: int = 1000, radius: int = 3, window: int = 9) -> None:
         self._orb = cv2.ORB_create(n_features)
-        self._bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
         self.radius, self.window = radius, window
 
     def features(self, gray: np.ndarray) -> FrameFeatures:
@@ -244,22 +244,30 @@ class ScaleRefiner:
         stopped: np.ndarray,
     ) -> np.ndarray:
         """``refmap`` (N,) re-chosen; ``new_feats``/``ref_feats`` from :meth:`features`;
-        ``stopped`` (N,) the stop mask."""
+        ``stopped`` (N,) the stop mask. Frames are measured in parallel threads (OpenCV's matcher
+        releases the GIL); the result does not depend on the thread count."""
+        from concurrent.futures import ThreadPoolExecutor
+
         m, r = len(ref_feats), self.radius
-        x = refmap.astype(float)
-        for k, f in enumerate(new_feats):
-            if stopped[k]:
-                continue
+
+        def crossing(k: int) -> float:
+            matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
             js, ls = [], []
             for j in range(max(0, int(refmap[k]) - r), min(m, int(refmap[k]) + r + 1)):
-                v = vertical_log_scale(f, ref_feats[j], self._bf)
+                v = vertical_log_scale(new_feats[k], ref_feats[j], matcher)
                 if v is not None:
                     js.append(j)
                     ls.append(v)
             if len(js) >= 3:
                 slope, icpt = np.polyfit(np.array(js, float), np.array(ls), 1)
                 if slope > 1e-4:
-                    x[k] = float(np.clip(-icpt / slope, js[0], js[-1]))
+                    return float(np.clip(-icpt / slope, js[0], js[-1]))
+            return float(refmap[k])
+
+        moving = [k for k in range(len(new_feats)) if not stopped[k]]
+        x = refmap.astype(float)
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            x[moving] = list(pool.map(crossing, moving))
         for k in range(1, len(x)):
             if stopped[k]:
                 x[k] = x[k - 1]

@@ -268,7 +268,4 @@ class ScaleRefiner:
         x = refmap.astype(float)
         with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
             x[moving] = list(pool.map(crossing, moving))
-        for k in range(1, len(x)):
-            if stopped[k]:
-                x[k] = x[k - 1]
         return np.clip(smooth_monotone(x, self.window, median=5, stopped=stopped), 0, m - 1)

@@ -71,7 +71,10 @@ def pg_url():
     base = Path(tempfile.mkdtemp(prefix="egovid-pg-"))
     as_user: list[str] = []
     if os.geteuid() == 0:
-        pw = pwd.getpwnam("postgres")
+        try:
+            pw = pwd.getpwnam("postgres")
+        except KeyError:
+            pytest.skip("running as root without a postgres user to run the server (make test installs one)")
         os.chown(base, pw.pw_uid, pw.pw_gid)
         as_user = ["runuser", "-u", "postgres", "--"]
     data = base / "data"

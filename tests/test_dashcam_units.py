@@ -164,6 +164,19 @@ def test_catalogue_transaction_rolls_back_and_spatial_index_finds_paths(tmp_path
     assert project([40.0], [-86.0], (40.0, -86.0)).tolist() == [[0.0, 0.0]]
 
 
+def test_postgresql_catalogue_that_loses_its_server_says_so(pg_url):
+    import psycopg
+
+    cat = PostgresCatalogue(pg_url, "egovid_lost_test", create=True)
+    with psycopg.connect(pg_url, autocommit=True) as admin:
+        pid = cat._db.info.backend_pid
+        admin.execute("SELECT pg_terminate_backend(%s)", (pid,))
+    with pytest.raises(EgovidError, match="lost the PostgreSQL catalogue"):
+        cat.drives()
+    with pytest.raises(EgovidError, match="is missing from"):
+        PostgresCatalogue(pg_url, "egovid_no_such_schema")
+
+
 def test_tamura_contrast_and_rank_scores_by_hand():
     # Two grey levels, half each: sigma = 50, kurtosis = 1, so C = 50 in every quadrant.
     img = np.zeros((8, 8), np.uint8)

@@ -174,7 +174,8 @@ def smooth_monotone(
     for a, b in zip(edges[::2], edges[1::2], strict=True):
         if b - a >= 3:
             y = median_filter(x[a:b], min(median or window, b - a), mode="nearest")
-            x[a:b] = savgol_filter(y, min(window, b - a - (1 - (b - a) % 2)), 1, mode="interp")
+            n = min(window, b - a)
+            x[a:b] = savgol_filter(y, n - (1 - n % 2), 1, mode="interp")  # an odd window of >= 3
     out = np.maximum.accumulate(np.round(x).astype(np.int64))
     for k in range(1, len(out)):
         if not moving[k]:

@@ -226,12 +226,11 @@ class _SqlCatalogue(Catalogue):
     _TYPES: ClassVar[dict[str, str]]
     _INDEX_DDL: str
     _NEAR: str
+    _depth = 0  # nesting level of transaction()
 
     def _ddl(self) -> list[str]:
         sql = _TABLES.format(**self._TYPES) + self._INDEX_DDL
         return [x for x in sql.split(";") if x.strip()]
-
-    _depth = 0
 
     @abstractmethod
     def _q(self, sql: str, args=()): ...
@@ -519,7 +518,16 @@ CREATE INDEX IF NOT EXISTS path_index_box ON path_index USING gist (box(point(mi
         self._db.execute("SELECT pg_advisory_xact_lock(hashtext(%s))", (self.schema,))
 
     def _q(self, sql: str, args=()):
-        return self._db.execute(sql.replace("?", "%s"), args)
+        import psycopg
+
+        try:
+            return self._db.execute(sql.replace("?", "%s"), args)
+        except psycopg.OperationalError as e:  # the server went away or refused mid-way
+            why = (str(e).strip().splitlines() or ["no reason given"])[-1]
+            raise EgovidError(
+                f"lost the PostgreSQL catalogue at {redact_url(self.url)}: {why}",
+                "check the server and run the command again (an interrupted ingest changed nothing)",
+            ) from None
 
     def close(self) -> None:
         self._db.close()

@@ -262,8 +262,6 @@ def digest_update(h, frame: np.ndarray) -> None:
 RUN_DIGEST_CHARS = 16  # 64 bits of SHA-256 per run: ample to catch damage, 16 bytes per 24 frames
 
 
-
-
 def encode_segment(
     frames: Iterator[np.ndarray],
     width: int,

@@ -6,8 +6,10 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 # System packages: ffmpeg (the vid.stab peer of the stabiliser's tests and benchmark; it also brings
 # Debian's libvpx, a second VP9 build the dashcam codec can use via EGOVID_LIBVPX) and postgresql
-# (the server binaries: the tests start a throw-away server for the dashcam's PostgreSQL catalogue).
-APT_PACKAGES := ffmpeg postgresql
+# (the server binaries: the tests start a throw-away server for the dashcam's PostgreSQL catalogue),
+# libimage-exiftool-perl (camera metadata and embedded GPS through pyexiftool) and chromium (the
+# headless browser that checks the archive's HTML map).
+APT_PACKAGES := ffmpeg postgresql libimage-exiftool-perl chromium
 
 .PHONY: help install sysdeps demo test lint bench clean
 
@@ -20,6 +22,8 @@ sysdeps:
 	@missing=""; \
 	command -v ffmpeg >/dev/null || missing="$$missing ffmpeg"; \
 	{ command -v initdb || ls /usr/lib/postgresql/*/bin/initdb; } >/dev/null 2>&1 || missing="$$missing postgresql"; \
+	command -v exiftool >/dev/null || missing="$$missing libimage-exiftool-perl"; \
+	command -v chromium >/dev/null || missing="$$missing chromium"; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing system packages:$$missing"; \
 	  SUDO=$$([ "$$(id -u)" -eq 0 ] || echo sudo); \

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import os
 import pwd
@@ -87,3 +88,57 @@ def pg_url():
     finally:
         run(pg_ctl, "-D", data, "-m", "immediate", "stop")
         shutil.rmtree(base, ignore_errors=True)
+
+
+def _wait_for(predicate, what: str, timeout: float) -> None:
+    """Poll ``predicate`` until it is true; fail the test loudly if ``timeout`` seconds pass first."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout:.0f} s waiting for {what}")
+        time.sleep(0.2)
+
+
+def _spawn(args: list[str], log: Path, env: dict) -> subprocess.Popen:
+    """Start a server process in its own session, its output going to ``log``."""
+    with open(log, "w") as fh:
+        return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+
+
+@pytest.fixture(scope="session")
+def dask_scheduler(tmp_path_factory):
+    """A real Dask cluster for the session: ``dask scheduler`` and ``dask worker --nworkers 2`` as
+    separate processes, on 127.0.0.1 and free ports; yields the scheduler address."""
+    import json
+    import signal
+
+    from distributed import Client
+
+    base = tmp_path_factory.mktemp("dask")
+    sched_file = base / "scheduler.json"
+    dask = str(Path(sys.executable).parent / "dask")
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parent)}
+    local = ["--host", "127.0.0.1", "--no-dashboard"]
+    procs = [_spawn([dask, "scheduler", *local, "--port", "0", "--scheduler-file", str(sched_file)],
+                    base / "scheduler.log", env)]
+    try:
+        _wait_for(lambda: sched_file.exists() and sched_file.stat().st_size > 0, "the Dask scheduler", 120)
+        address = json.loads(sched_file.read_text())["address"]
+        workers = [dask, "worker", address, *local, "--nworkers", "2", "--nthreads", "1",
+                   "--local-directory", str(base / "workers")]
+        procs.append(_spawn(workers, base / "workers.log", env))
+        with Client(address, timeout=60) as client:
+            client.wait_for_workers(2, timeout=180)
+        yield address
+    finally:
+        for p in reversed(procs):
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()

@@ -1,0 +1,192 @@
+"""Run many independent tasks: in this process, on a local pool of worker processes, or on a Dask
+cluster.
+
+This is the one place egovid talks to Dask (``dask.distributed``); the dashcam ingest and the voeval
+grid both go through it, so a local run and a cluster run share one code path.
+
+* :func:`scheduler_address` resolves ``--scheduler`` (else Dask's own ``DASK_SCHEDULER_ADDRESS``).
+* :func:`open_client` yields a Dask client: connected to that scheduler, or to a throw-away
+  ``LocalCluster`` of worker processes bound to 127.0.0.1, or ``None`` for in-process work.
+* :func:`run_tasks` runs ``fn(item)`` for every item and yields a :class:`TaskOutcome` per task as
+  tasks finish.
+
+Dask pitfalls handled here: ``submit`` defaults to ``pure=True`` (identical arguments would run once;
+we always pass ``pure=False`` and a unique key); a task that *raises* is retried ``retries`` times; a
+task whose worker *dies* (killed, out of memory) is rescheduled by the scheduler on another worker
+(up to ``distributed.scheduler.allowed-failures`` times, then it fails with ``KilledWorker``). So a
+task may run more than once: tasks must be idempotent (write atomically, commit once).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import os
+import uuid
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from egovid.errors import EgovidError
+
+SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
+
+
+@dataclass(frozen=True)
+class EngineConfig:
+    """Where tasks run.
+
+    ``scheduler``: address of a running Dask scheduler (``tcp://HOST:8786``), or ``None`` for this
+    machine. ``workers``: local worker processes when there is no scheduler (1 = run in this
+    process, no Dask at all). ``retries``: extra attempts for a task that raised an exception.
+    """
+
+    scheduler: str | None = None
+    workers: int = 1
+    retries: int = 1
+
+    def __post_init__(self) -> None:
+        if self.workers < 1 or self.workers > 512:
+            raise EgovidError(f"--workers {self.workers} is out of range", "use 1 to 512 worker processes")
+        if self.retries < 0 or self.retries > 10:
+            raise EgovidError(f"retries {self.retries} is out of range", "use 0 to 10")
+
+    @property
+    def in_process(self) -> bool:
+        """True when tasks run one after another in this process."""
+        return self.scheduler is None and self.workers == 1
+
+
+@dataclass
+class TaskOutcome:
+    """The end of one task: ``value`` when it returned, ``error`` when it failed for good."""
+
+    key: str
+    item: Any
+    value: Any = None
+    error: BaseException | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+def scheduler_address(option: str | None) -> str | None:
+    """The scheduler to use: ``option`` (a ``--scheduler`` value), else ``$DASK_SCHEDULER_ADDRESS``
+    (Dask's standard variable), else ``None`` (this machine)."""
+    address = option or os.environ.get(SCHEDULER_ENV) or None
+    if address is not None and "://" not in address and ":" not in address:
+        raise EgovidError(
+            f"scheduler address {address!r} has no port",
+            "write it as tcp://HOST:8786 (the address `dask scheduler` prints)",
+        )
+    return address
+
+
+@contextlib.contextmanager
+def open_client(config: EngineConfig, *, connect_timeout: float = 30.0) -> Iterator[Any]:
+    """Yield a ``distributed.Client`` for ``config``, or ``None`` when tasks run in this process.
+
+    Without a scheduler a ``LocalCluster`` of ``config.workers`` single-threaded worker processes is
+    started on 127.0.0.1 (no dashboard) and closed afterwards. An unreachable scheduler gives an
+    :class:`EgovidError`.
+    """
+    if config.in_process:
+        yield None
+        return
+    from distributed import Client, LocalCluster
+
+    if config.scheduler is not None:
+        try:
+            client = Client(config.scheduler, timeout=connect_timeout)
+        except (OSError, TimeoutError) as exc:
+            raise EgovidError(
+                f"cannot reach the Dask scheduler at {config.scheduler} ({type(exc).__name__})",
+                "start one with `dask scheduler` and workers with `dask worker ADDRESS`, or drop --scheduler",
+            ) from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    cluster = LocalCluster(
+        n_workers=config.workers,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address="127.0.0.1:0",  # its HTTP server (health, metrics) on loopback only
+        worker_dashboard_address="127.0.0.1:0",
+        silence_logs=40,  # logging.ERROR
+    )
+    try:
+        client = Client(cluster)
+        try:
+            yield client
+        finally:
+            client.close()
+    finally:
+        cluster.close()
+
+
+def run_tasks(
+    fn: Callable[[Any], Any],
+    items: Iterable[Any],
+    *,
+    config: EngineConfig,
+    keys: Sequence[str] | None = None,
+    name: str = "task",
+    client: Any = None,
+) -> Iterator[TaskOutcome]:
+    """Run ``fn(item)`` for every item; yield a :class:`TaskOutcome` per task as tasks finish.
+
+    ``fn`` must be importable by the workers (a module-level function) and idempotent (it may run
+    again after a worker died). ``keys`` names the tasks (default: their index); task keys on the
+    cluster are ``NAME-KEY-<random>`` so that two runs never collide. ``client`` reuses an open
+    client (from :func:`open_client`); otherwise one is opened for this call. A task that raises is
+    retried ``config.retries`` times, then reported with its ``error``; other tasks carry on.
+    """
+    items = list(items)
+    keys = [str(k) for k in (keys if keys is not None else range(len(items)))]
+    if len(keys) != len(items):
+        raise ValueError("one key per item")
+    if config.in_process and client is None:
+        for key, item in zip(keys, items, strict=True):
+            yield _run_here(fn, key, item, config.retries)
+        return
+    with contextlib.ExitStack() as stack:
+        if client is None:
+            client = stack.enter_context(open_client(config))
+        from distributed import as_completed
+
+        token = uuid.uuid4().hex[:8]
+        futures = {}
+        for key, item in zip(keys, items, strict=True):
+            fut = client.submit(fn, item, key=f"{name}-{key}-{token}", pure=False, retries=config.retries)
+            futures[fut] = (key, item)
+        try:
+            for fut in as_completed(list(futures)):
+                key, item = futures[fut]
+                try:
+                    yield TaskOutcome(key, item, value=fut.result())
+                except Exception as exc:  # the task failed for good, or its worker kept dying
+                    yield TaskOutcome(key, item, error=exc)
+                finally:
+                    fut.release()
+        finally:
+            for fut in futures:
+                if not fut.done():
+                    fut.cancel()
+
+
+def _run_here(fn: Callable[[Any], Any], key: str, item: Any, retries: int) -> TaskOutcome:
+    error: BaseException | None = None
+    for _attempt in itertools.count():
+        try:
+            return TaskOutcome(key, item, value=fn(item))
+        except EgovidError as exc:  # a user error does not get better by trying again
+            return TaskOutcome(key, item, error=exc)
+        except Exception as exc:
+            error = exc
+            if _attempt >= retries:
+                break
+    return TaskOutcome(key, item, error=error)

@@ -1,0 +1,96 @@
+"""The task engine: in-process, a local Dask pool, and a real Dask cluster (scheduler + 2 workers)."""
+
+from __future__ import annotations
+
+import os
+import signal
+from pathlib import Path
+
+import pytest
+
+from egovid.engine import EngineConfig, run_tasks, scheduler_address
+from egovid.errors import EgovidError
+
+
+def square(x: int) -> int:
+    return x * x
+
+
+def fail_once(marker: str) -> str:
+    """Raise on the first call (no marker yet), succeed afterwards."""
+    p = Path(marker)
+    if not p.exists():
+        p.write_text("x")
+        raise RuntimeError("first attempt fails")
+    return "ok"
+
+
+def die_once(marker: str) -> int:
+    """Kill the worker process running this task on the first attempt; succeed on the retry."""
+    p = Path(marker)
+    if not p.exists():
+        p.write_text(str(os.getpid()))
+        os.kill(os.getpid(), signal.SIGKILL)
+    return os.getpid()
+
+
+def always_fails(_: int) -> None:
+    raise ValueError("never works")
+
+
+def test_in_process_runs_every_item_and_retries():
+    cfg = EngineConfig(workers=1, retries=1)
+    out = {o.key: o.value for o in run_tasks(square, [1, 2, 3], config=cfg, keys=["a", "b", "c"])}
+    assert out == {"a": 1, "b": 4, "c": 9}
+
+
+def test_in_process_retry_then_failure(tmp_path):
+    cfg = EngineConfig(workers=1, retries=1)
+    [ok] = run_tasks(fail_once, [str(tmp_path / "m")], config=cfg)
+    assert ok.ok and ok.value == "ok"
+    [bad] = run_tasks(always_fails, [0], config=EngineConfig(workers=1, retries=2))
+    assert not bad.ok and isinstance(bad.error, ValueError)
+
+
+def test_scheduler_address_from_option_or_dask_variable(monkeypatch):
+    monkeypatch.delenv("DASK_SCHEDULER_ADDRESS", raising=False)
+    assert scheduler_address(None) is None
+    assert scheduler_address("tcp://10.0.0.1:8786") == "tcp://10.0.0.1:8786"
+    monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "tcp://127.0.0.1:9999")
+    assert scheduler_address(None) == "tcp://127.0.0.1:9999"
+    with pytest.raises(EgovidError):
+        scheduler_address("localhost")
+
+
+def test_bad_worker_count_is_a_user_error():
+    with pytest.raises(EgovidError):
+        EngineConfig(workers=0)
+
+
+def test_unreachable_scheduler_is_one_clear_error():
+    import socket
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(EgovidError, match="cannot reach the Dask scheduler"):
+        list(run_tasks(square, [1], config=EngineConfig(scheduler=f"tcp://127.0.0.1:{port}")))
+
+
+def test_cluster_runs_tasks_and_retries_after_a_killed_worker(dask_scheduler, tmp_path):
+    cfg = EngineConfig(scheduler=dask_scheduler, retries=1)
+    results = {o.key: o.value for o in run_tasks(square, range(6), config=cfg, name="sq")}
+    assert results == {str(i): i * i for i in range(6)}
+    # identical arguments still run as separate tasks (pure=False): both come back
+    assert len(list(run_tasks(square, [5, 5], config=cfg))) == 2
+    marker = tmp_path / "died"
+    [outcome] = run_tasks(die_once, [str(marker)], config=cfg, name="die")
+    assert marker.exists(), "the first attempt never ran"
+    assert outcome.ok, outcome.error
+    assert outcome.value != int(marker.read_text()), "the retry ran in the process that was killed"
+
+
+def test_local_pool_of_two_processes(tmp_path):
+    cfg = EngineConfig(workers=2, retries=1)
+    outcomes = list(run_tasks(fail_once, [str(tmp_path / "a"), str(tmp_path / "b")], config=cfg))
+    assert all(o.ok and o.value == "ok" for o in outcomes)

@@ -38,6 +38,29 @@ def assert_one_error(r: subprocess.CompletedProcess, needle: str = "") -> None:
     assert len(lines) == 1 and needle in lines[0], r.stderr
 
 
+REAL_CLIPS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+
+
+def real_clip(name: str) -> Path:
+    """A real camera clip from ``../shared/data/real/`` (see its SOURCES.md); never copied into the repo."""
+    path = REAL_CLIPS / name
+    if not path.exists():
+        pytest.skip(f"real clip {path} is not here (it lives in ../shared/data/real/ beside the checkout)")
+    return path
+
+
+@pytest.fixture(scope="session")
+def karma_clip() -> Path:
+    """GoPro HERO5 on a Karma gimbal: 854x480, 29.97 fps, 12.1 s, full range, GPMF gyro 400 Hz and GPS."""
+    return real_clip("gopro-hero5-karma.mp4")
+
+
+@pytest.fixture(scope="session")
+def handheld_clip() -> Path:
+    """Handheld 1920x1080 30 fps pan, 5.7 s, H.264 with B-frames, AAC audio, no telemetry."""
+    return real_clip("handheld-1080p-pan.mp4")
+
+
 @pytest.fixture(scope="session")
 def shaky_clip(tmp_path_factory) -> Path:
     """640x360, 90 frames of running motion with roll, shake and sensor noise (H.264)."""

@@ -36,9 +36,11 @@ import numpy as np
 
 from egovid.dashcam import codec, vpx
 from egovid.dashcam.align import OrbScorer, ScaleRefiner, align_orb, small_gray, smooth_monotone
-from egovid.dashcam.archive import Archive, IngestOptions, _project_on_polyline
+from egovid.dashcam.geometry import project_on_polyline
 from egovid.dashcam.gps import project
+from egovid.dashcam.ingest import IngestOptions, ingest
 from egovid.dashcam.seqslam import align_seqslam, descriptor
+from egovid.dashcam.store import Archive
 from egovid.io.video import iter_frames
 from egovid.synth.drive import ORIGIN, DriveSpec, Light, gps_samples, render_drive, route_map, simulate
 
@@ -100,7 +102,7 @@ def gps_positions(spec: DriveSpec, truth, fps: float) -> np.ndarray:
     g = gps_samples(spec, truth)
     xy = project(g["lat"], g["lon"], ORIGIN)
     street = route_map()["main"]
-    s_fix = np.maximum.accumulate(_project_on_polyline(street.points, xy))
+    s_fix = np.maximum.accumulate(project_on_polyline(street.points, xy))
     t_fix = np.array([(t - spec.start_time).total_seconds() for t in g["time"]])
     return np.interp(truth.times, t_fix, s_fix)
 
@@ -278,8 +280,8 @@ def main() -> None:
         root = big / "archive"
         shutil.rmtree(root, ignore_errors=True)
         ar = Archive.create(root)
-        r0 = ar.ingest(vids[0], vids[0].with_suffix(".gpx"), IngestOptions(measure_savings=savings))
-        r1 = ar.ingest(vids[1], vids[1].with_suffix(".gpx"), IngestOptions(measure_savings=savings))
+        r0 = ingest(ar, vids[0], vids[0].with_suffix(".gpx"), IngestOptions(measure_savings=savings))
+        r1 = ingest(ar, vids[1], vids[1].with_suffix(".gpx"), IngestOptions(measure_savings=savings))
         speeds[f"savings_{savings}"] = {
             "root_fps": r0.fps,
             "joint_fps": r1.fps,

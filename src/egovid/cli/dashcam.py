@@ -16,9 +16,9 @@ app = typer.Typer(
 
 
 def _open(archive: Path):
-    from egovid.dashcam.archive import Archive
+    from egovid.dashcam.store import open_archive
 
-    return Archive(archive)
+    return open_archive(archive)
 
 
 @app.command("init")
@@ -29,25 +29,41 @@ def init(
         "--db",
         help="Catalogue database: leave out for the embedded SQLite file in the archive folder, or give "
         "postgresql://USER@HOST[:PORT]/DATABASE to keep the catalogue in a new schema of that database "
-        "(the bitstreams stay in the folder; keep passwords in PGPASSWORD or ~/.pgpass, not in the URL).",
+        "(keep passwords in PGPASSWORD or ~/.pgpass, not in the URL).",
+    ),
+    blobs: str = typer.Option(
+        None,
+        "--blobs",
+        help="Where the bitstreams go: leave out for the archive folder, or give an fsspec URL such as "
+        "s3://BUCKET/PREFIX (credentials and endpoint from the standard AWS_ACCESS_KEY_ID, "
+        "AWS_SECRET_ACCESS_KEY and AWS_ENDPOINT_URL variables).",
     ),
 ) -> None:
-    """Create an empty archive."""
-    from egovid.dashcam.archive import Archive
+    """Create an empty archive.
+
+    For an archive spread over machines, keep the catalogue in PostgreSQL (--db) and the bitstreams
+    in an object store (--blobs); the folder then holds only the marker that names them.
+    """
     from egovid.dashcam.catalogue import redact_url
+    from egovid.dashcam.store import Archive
     from egovid.dashcam.vpx import self_test
 
-    ar = Archive.create(archive, db)
+    ar = Archive.create(archive, db, blobs)
     cat = ar.meta["catalogue"]
     where = "SQLite" if cat["backend"] == "sqlite" else f"PostgreSQL {redact_url(cat['url'])}, schema {cat['schema']}"
-    console.print(f"archive {archive} created (catalogue: {where}; codec: {self_test()})")
+    console.print(f"archive {archive} created (catalogue: {where}; blobs: {ar.blobs.url}; codec: {self_test()})")
 
 
 @app.command("ingest")
 def ingest(
     archive: Path = typer.Argument(..., help="Archive folder (from `egovid dashcam init`)."),
     video: Path = typer.Argument(..., help="Dashcam video of the drive."),
-    gps: Path = typer.Option(..., "--gps", help="GPS track of the drive: GPX, NMEA 0183 or CSV (time,lat,lon,...)."),
+    gps: Path = typer.Option(
+        None,
+        "--gps",
+        help="GPS track of the drive: GPX, NMEA 0183 or CSV (time,lat,lon,...). Default: the file beside the "
+        "video with the same name and a .gpx, .nmea or .csv extension.",
+    ),
     name: str = typer.Option(None, help="Name of the drive in the archive (default: the video's file name)."),
     start: str = typer.Option(None, help="UTC start time of the video (ISO 8601) if its metadata lacks it."),
     gps_offset: float = typer.Option(0.0, help="Seconds to add to the video's start to line it up with the GPS."),
@@ -82,7 +98,7 @@ def ingest(
     """
     import datetime as dt
 
-    from egovid.dashcam.archive import IngestOptions
+    from egovid.dashcam.ingest import IngestOptions, ingest
     from egovid.errors import EgovidError
 
     ar = _open(archive)
@@ -105,12 +121,9 @@ def ingest(
         baseline_align=baseline_align,
         measure_savings=savings,
         verify=verify,
-        name=name,
-        start_utc=start_utc,
-        gps_offset=gps_offset,
-    )
+    ).check()
     with staged_progress() as cb:
-        rep = ar.ingest(video, gps, opts, progress=cb)
+        rep = ingest(ar, video, gps, opts, name=name, start_utc=start_utc, gps_offset=gps_offset, progress=cb)
     for p in rep.pieces:
         saving = f", saving {100 * p.saving:.1f} % vs standalone" if p.saving is not None else ""
         ref = f" against {p.ref_drive}" if p.ref_drive else " (root: no older drive of this path and light)"
@@ -199,8 +212,10 @@ def extract(
         raise EgovidError(
             f"--start {start} s is past the end of drive {d.name} ({d.frames / d.fps:.1f} s)", "choose an earlier start"
         )
+    from egovid.dashcam.extract import extract_video
+
     with staged_progress() as cb:
-        ar.extract(drive, out, progress=lambda k, n: cb("extract", k, n), frames=(f0, f1))
+        extract_video(ar, d, out, progress=lambda k, n: cb("extract", k, n), frames=(f0, f1))
     console.print(f"{d.name}: frames {f0}-{f1 - 1} of {d.frames} → {out}")
 
 
@@ -218,8 +233,8 @@ def gc(
     junk, size = ar.collect_garbage(dry_run=dry_run)
     verb = "would delete" if dry_run else "deleted"
     console.print(f"{verb} {len(junk)} unreferenced file(s), {size / 1024:.0f} KiB")
-    for p in junk:
-        console.print(f"  {p.relative_to(archive)}")
+    for f in junk:
+        console.print(f"  {f.name} ({f.size / 1024:.0f} KiB)")
 
 
 @app.command("report")
@@ -230,8 +245,9 @@ def report(
     """Bits per path and per drive, and the savings of joint coding."""
     from rich.table import Table
 
-    ar = _open(archive)
-    rep = ar.report()
+    from egovid.dashcam.report import archive_report
+
+    rep = archive_report(_open(archive))
     t = Table(title="paths")
     for col in ("path", "length", "sequences", "frames", "stored", "bits/frame", "saving"):
         t.add_column(col, justify="right")
@@ -262,7 +278,7 @@ def report(
             ", ".join(d["references"]) or "-",
         )
     console.print(t)
-    console.print(f"bitstreams on disk: {rep['blob_bytes'] / 1024:.0f} KiB; {rep['codec']}")
+    console.print(f"bitstreams in {rep['blobs']}: {rep['blob_bytes'] / 1024:.0f} KiB; {rep['codec']}")
     if json_out is not None:
         from egovid.io.files import atomic_write_text
 

@@ -51,15 +51,25 @@ class GpsTrack:
         """(N, 2) east/north metres around ``origin`` (lat, lon degrees)."""
         return project(self.lat, self.lon, origin)
 
+    def motion_at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Speed (m/s) and bearing (degrees) interpolated at UTC times ``t`` (seconds)."""
+        b = np.unwrap(np.radians(self.bearing))
+        return np.interp(t, self.t, self.speed), np.degrees(np.interp(t, self.t, b)) % 360.0
+
     def at(self, t: np.ndarray, origin: tuple[float, float]) -> dict[str, np.ndarray]:
         """Positions (metres), speed and bearing interpolated at UTC times ``t``."""
         xy = self.xy(origin)
-        b = np.unwrap(np.radians(self.bearing))
+        speed, bearing = self.motion_at(t)
         return {
             "xy": np.stack([np.interp(t, self.t, xy[:, 0]), np.interp(t, self.t, xy[:, 1])], axis=1),
-            "speed": np.interp(t, self.t, self.speed),
-            "bearing": np.degrees(np.interp(t, self.t, b)) % 360.0,
+            "speed": speed,
+            "bearing": bearing,
         }
+
+    def between(self, t0: float, t1: float) -> GpsTrack:
+        """The fixes with ``t0 <= t <= t1`` (UTC seconds)."""
+        k = (self.t >= t0) & (self.t <= t1)
+        return GpsTrack(self.t[k], self.lat[k], self.lon[k], self.speed[k], self.bearing[k], self.source, self.dropped)
 
 
 def project(lat, lon, origin: tuple[float, float]) -> np.ndarray:
@@ -97,12 +107,19 @@ def _derive(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, speed, bearing) -> 
 
 def _finish(t, lat, lon, speed, bearing, source, dropped) -> GpsTrack:
     t = np.asarray(t, dtype=float)
+    lat, lon = np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
+    # NaN or infinite times or positions are no fixes (a NaN origin would poison the archive).
+    finite = np.isfinite(t) & np.isfinite(lat) & np.isfinite(lon)
+    if not finite.all():
+        dropped = {**dropped, "not finite": int((~finite).sum())}
+    t, lat, lon = t[finite], lat[finite], lon[finite]
+    speed, bearing = np.asarray(speed, dtype=float)[finite], np.asarray(bearing, dtype=float)[finite]
     if len(t) < 2:
         raise EgovidError(f"{source} has {len(t)} valid GPS fix(es); at least 2 are needed", _FIX)
     order = np.argsort(t, kind="stable")
     t = t[order]
     keep = np.concatenate([[True], np.diff(t) > 0])  # drop duplicate timestamps (RMC+GGA pairs)
-    arrays = [np.asarray(a, dtype=float)[order][keep] for a in (lat, lon, speed, bearing)]
+    arrays = [a[order][keep] for a in (lat, lon, speed, bearing)]
     lat, lon, speed, bearing = arrays
     t = t[keep]
     if np.any(np.abs(lat) > 90) or np.any(np.abs(lon) > 180):

@@ -49,7 +49,9 @@ def archive(drives, tmp_path_factory):
     reports = {}
     for name in ("a", "b", "c"):
         video, gps, _ = drives[name]
-        r = run_cli("dashcam", "ingest", root, video, "--gps", gps, "--json", root.parent / f"{name}.json")
+        r = run_cli(
+            "dashcam", "ingest", root, video, "--gps", gps, "--measure-savings", "--json", root.parent / f"{name}.json"
+        )
         assert r.returncode == 0, r.stderr
         reports[name] = json.loads((root.parent / f"{name}.json").read_text())
     return root, reports

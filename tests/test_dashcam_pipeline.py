@@ -103,3 +103,65 @@ def test_streamed_alignment_gives_the_whole_sequence_aligners_matches(sequences,
         mem.low = stream.lowest_needed()
     assert got == [int(v) for v in want]
     assert lag <= (24 if kind == "orb" else 0)  # two smoothing windows (more where a stretch begins)
+
+
+def test_the_default_options_are_the_default_preset_and_options_override_presets():
+    from egovid.dashcam.ingest.options import DEFAULT_PRESET, PRESETS, IngestOptions
+    from egovid.errors import EgovidError
+
+    assert IngestOptions() == IngestOptions.from_preset(None) == IngestOptions.from_preset(DEFAULT_PRESET)
+    for name, settings in PRESETS.items():
+        opts = IngestOptions.from_preset(name, q=40, speed=None).check()
+        assert opts.q == 40 and opts.preset == name and all(getattr(opts, k) == v for k, v in settings.items())
+    with pytest.raises(EgovidError, match="unknown preset"):
+        IngestOptions.from_preset("fastest")
+
+
+class _CountingContainer:
+    """An av container that counts the frames it decodes."""
+
+    def __init__(self, container, counts, key):
+        self._c, self._counts, self._key = container, counts, key
+
+    def decode(self, *args, **kwargs):
+        for frame in self._c.decode(*args, **kwargs):
+            self._counts[self._key] = self._counts.get(self._key, 0) + 1
+            yield frame
+
+    def __getattr__(self, name):
+        return getattr(self._c, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return self._c.__exit__(*exc)
+
+
+def test_an_ingest_decodes_its_video_once_and_holds_few_frames(tmp_path, monkeypatch):
+    """A joint drive of 10 s: FFmpeg decodes each of its frames once (plus the first, which probe
+    looks at), and at most a few dozen frames of the two drives are in memory at any time."""
+    import av
+
+    from egovid.dashcam.ingest import ingest
+    from egovid.dashcam.store import Archive
+    from egovid.synth.drive import DriveSpec, Light, render_drive
+
+    noon = Light.preset("noon")
+    leg = [("main", 100.0, 200.0)]
+    for name, spec in {
+        "old": DriveSpec(legs=leg, cruise=10.0, seed=5, light=noon),
+        "new": DriveSpec(legs=leg, cruise=9.0, stops=[(50.0, 1.0)], seed=6, light=noon),
+    }.items():
+        render_drive(spec, tmp_path / f"{name}.mp4", width=160, height=96)
+    ar = Archive.create(tmp_path / "archive")
+    ingest(ar, tmp_path / "old.mp4")
+    counts: dict = {}
+    real_open = av.open
+    monkeypatch.setattr(
+        av, "open", lambda path, *a, **k: _CountingContainer(real_open(path, *a, **k), counts, str(path))
+    )
+    rep = ingest(ar, tmp_path / "new.mp4")
+    assert [p.mode for p in rep.pieces] == ["joint"] and rep.frames > 300
+    assert counts == {str(tmp_path / "new.mp4"): rep.frames + 1}
+    assert 0 < max(p.peak_frames_held for p in rep.pieces) < 80

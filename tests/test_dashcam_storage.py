@@ -73,9 +73,14 @@ def test_a_stretch_is_read_by_byte_ranges_and_decodes_as_the_whole(tmp_path):
     w, h, n = 64, 48, 40
     base = rng.integers(0, 256, (h * 3 // 2 + 8, w + 40), dtype=np.uint8)
     frames = [np.ascontiguousarray(base[k % 8 : k % 8 + h * 3 // 2, k : k + w]) for k in range(n)]
-    enc = codec.encode_segment(iter(frames), w, h, vpx.EncoderSettings(q=30, speed=6, gop=4, refresh=8))
+    st = vpx.EncoderSettings(q=30, speed=6, gop=4, refresh=8)
+    enc = codec.encode_segment(iter(frames), w, h, st)
     store = CountingStore(tmp_path / "blobs")
     sha = store.put(enc.blob)
+    with open(tmp_path / "spool", "w+b") as spool:  # packets streamed to a file: the same blob
+        spooled = codec.encode_segment(iter(frames), w, h, st, spool=spool)
+        assert store.put_chunks(spooled.chunks(size=1000)) == sha and spooled.nbytes == len(enc.blob)
+        assert spooled.run_offsets == enc.run_offsets == codec.run_offsets(enc.blob)
     params = {"width": w, "height": h, "refresh": 8, "run_digests": enc.run_digests}
     whole = Segment(1, 1, 0, n, "intra", None, np.full(n, -1), {}, sha, len(enc.blob), params)
     ranged = Segment(

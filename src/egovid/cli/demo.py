@@ -132,7 +132,7 @@ def _dashcam(folder: Path, quick: bool) -> None:
     shutil.rmtree(folder / "archive", ignore_errors=True)
     ar = Archive.create(folder / "archive")
     for video, gps, _ in (monday, tuesday):
-        rep = ingest(ar, video, gps, IngestOptions())
+        rep = ingest(ar, video, gps, IngestOptions(measure_savings=True))
         for p in rep.pieces:
             saving = f", {100 * p.saving:.1f} % smaller than standalone VP9" if p.saving is not None else ""
             console.print(

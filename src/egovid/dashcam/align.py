@@ -103,11 +103,34 @@ def cross_check_matches(desc_a: np.ndarray, desc_b: np.ndarray) -> tuple[np.ndar
     return _cross_check(a, b)
 
 
-class OrbScorer:
-    """ORB features per frame and the RANSAC inlier count of a frame pair (cached)."""
+class MatchCache:
+    """:func:`cross_check_matches` remembering its last ``size`` results, for an aligner whose
+    search and refinement look at the same pairs of features (one thread)."""
 
-    def __init__(self, n_features: int = 500) -> None:
+    def __init__(self, size: int = 64) -> None:
+        self.size = size
+        self._memo: dict[tuple[int, int], tuple] = {}
+
+    def __call__(self, desc_a: np.ndarray, desc_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = (id(desc_a), id(desc_b))
+        hit = self._memo.get(key)
+        if hit is not None and hit[0] is desc_a and hit[1] is desc_b:
+            return hit[2]
+        out = cross_check_matches(desc_a, desc_b)
+        self._memo[key] = (desc_a, desc_b, out)  # holding the arrays keeps their ids unique
+        if len(self._memo) > self.size:
+            del self._memo[next(iter(self._memo))]
+        return out
+
+
+class OrbScorer:
+    """ORB features per frame and the RANSAC inlier count of a frame pair (cached). ``matcher``:
+    the cross-check matcher (default :func:`cross_check_matches`; a :class:`MatchCache` shares
+    matches with the refinement)."""
+
+    def __init__(self, n_features: int = 500, matcher: Callable | None = None) -> None:
         self.extract = FeatureExtractor("orb", n_features)
+        self.matcher = matcher or cross_check_matches
         self._cache: dict[tuple[int, int], int] = {}
 
     def features(self, gray: np.ndarray) -> FrameFeatures:
@@ -121,7 +144,7 @@ class OrbScorer:
             return self._cache[key]
         n = 0
         if a.desc is not None and b.desc is not None and len(a) >= 8 and len(b) >= 8:
-            qi, ti = cross_check_matches(a.desc, b.desc)
+            qi, ti = self.matcher(a.desc, b.desc)
             if len(qi) >= 8:
                 pa, pb = a.pts[qi], b.pts[ti]
                 F, mask = cv2.findFundamentalMat(pa, pb, cv2.FM_RANSAC, 1.5, 0.99, 200)
@@ -344,7 +367,7 @@ class StreamSmoother:
         return out
 
 
-def vertical_log_scale(new: FrameFeatures, ref: FrameFeatures) -> float | None:
+def vertical_log_scale(new: FrameFeatures, ref: FrameFeatures, matcher: Callable | None = None) -> float | None:
     """Natural log of the vertical image scale from a new frame to a reference frame (> 0: the
     reference shows the scene larger, i.e. was taken further along the road), from ORB matches:
     RANSAC similarity inliers, then ``y_ref = a·y_new + b`` by least squares with outliers trimmed
@@ -354,7 +377,7 @@ def vertical_log_scale(new: FrameFeatures, ref: FrameFeatures) -> float | None:
     moving along the road scales both coordinates about the focus of expansion."""
     if new.desc is None or ref.desc is None or len(new) < 12 or len(ref) < 12:
         return None
-    qi, ti = cross_check_matches(new.desc, ref.desc)
+    qi, ti = (matcher or cross_check_matches)(new.desc, ref.desc)
     if len(qi) < 12:
         return None
     p = new.pts[qi].astype(np.float32)
@@ -387,11 +410,17 @@ class ScaleRefiner:
     reference sequence; frames with fewer than 3 measured scales keep their match, stopped frames
     take the previous one. Uses its own ORB
     (1000 key points, OpenCV's default pyramid) on the 320-pixel-wide grey frames: the scale needs
-    more and finer-scaled points than the inlier count of the search does."""
+    more and finer-scaled points than the inlier count of the search does. ``n_features`` 0: the
+    caller passes the search's features instead (one ORB per frame; with a shared
+    :class:`MatchCache` as ``matcher`` the pairs the search matched are not matched again)."""
 
-    def __init__(self, n_features: int = 1000, radius: int = 3, window: int = 9) -> None:
-        self._orb = cv2.ORB_create(n_features)
+    def __init__(
+        self, n_features: int = 1000, radius: int = 3, window: int = 9, matcher: Callable | None = None
+    ) -> None:
+        self.n_features = n_features
+        self._orb = cv2.ORB_create(n_features) if n_features else None
         self.radius, self.window = radius, window
+        self.matcher = matcher
 
     def features(self, gray: np.ndarray) -> FrameFeatures:
         """Key points of a grey frame from :func:`small_gray`."""
@@ -425,7 +454,7 @@ class ScaleRefiner:
         itself when fewer than 3 scales could be measured)."""
         js, ls = [], []
         for j in range(max(0, match - self.radius), min(m, match + self.radius + 1)):
-            v = vertical_log_scale(new, ref_feats(j))
+            v = vertical_log_scale(new, ref_feats(j), self.matcher)
             if v is not None:
                 js.append(j)
                 ls.append(v)

@@ -21,7 +21,7 @@ import hashlib
 import os
 import re
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,6 +59,24 @@ class BlobStore(ABC):
         if not self.exists(sha):
             self._write(sha, data)
         return sha
+
+    def put_chunks(self, chunks: Iterable[bytes]) -> str:
+        """Store a blob given as pieces (streamed: it need not fit in memory); returns its name."""
+        import tempfile
+
+        h = hashlib.sha256()
+        with tempfile.TemporaryFile() as tmp:
+            for c in chunks:
+                h.update(c)
+                tmp.write(c)
+            sha = h.hexdigest()
+            if not self.exists(sha):
+                tmp.seek(0)
+                self._write_file(sha, tmp)
+        return sha
+
+    def _write_file(self, sha: str, fh) -> None:
+        self._write(sha, fh.read())
 
     def get(self, sha: str) -> bytes:
         """The whole blob, checked against its name."""
@@ -125,6 +143,33 @@ class LocalBlobs(BlobStore):
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(path, data)
 
+    def put_chunks(self, chunks: Iterable[bytes]) -> str:
+        """Write the pieces to a temporary file in the store (hashing as they come), flush it to
+        disk and rename it to its name: memory stays flat, a crash leaves only a ``.part`` file."""
+        import uuid
+
+        self.folder.mkdir(parents=True, exist_ok=True)
+        tmp = self.folder / f".incoming.part-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        h = hashlib.sha256()
+        try:
+            with open(tmp, "wb") as fh:
+                for c in chunks:
+                    h.update(c)
+                    fh.write(c)
+                fh.flush()
+                os.fsync(fh.fileno())
+            sha = h.hexdigest()
+            path = self._path(sha)
+            if path.exists():
+                tmp.unlink()
+            else:
+                path.parent.mkdir(exist_ok=True)
+                os.replace(tmp, path)
+            return sha
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+
     def _read(self, sha: str) -> bytes:
         try:
             return self._path(sha).read_bytes()
@@ -147,6 +192,7 @@ class LocalBlobs(BlobStore):
                 yield BlobFile(p.name, p.stat().st_size)
 
     def delete(self, name: str) -> None:
+        (self.folder / name).unlink(missing_ok=True)  # a temporary file at the top
         for p in self.folder.glob(f"*/{name}"):
             p.unlink(missing_ok=True)
             if p.parent != self.folder and not any(p.parent.iterdir()):
@@ -178,6 +224,11 @@ class FsspecBlobs(BlobStore):
     def _write(self, sha: str, data: bytes) -> None:
         self.fs.pipe_file(self._key(sha), data)
 
+    def _write_file(self, sha: str, fh) -> None:
+        with self.fs.open(self._key(sha), "wb") as out:
+            while block := fh.read(1 << 22):
+                out.write(block)
+
     def _read(self, sha: str) -> bytes:
         try:
             return self.fs.cat_file(self._key(sha))
@@ -207,8 +258,16 @@ class FsspecBlobs(BlobStore):
 
     def check(self) -> None:
         """Fail with one clear error unless the store can be listed and written (``init``)."""
+        bucket = self.base.split("/", 1)[0]
         try:
-            self.fs.mkdirs(self.base, exist_ok=True)
+            found = self.fs.exists(bucket)
+        except Exception:
+            found = True  # let the write below say why
+        if not found:
+            raise EgovidError(
+                f"bucket {bucket} does not exist at {self.url}", "create it first (or check AWS_ENDPOINT_URL)"
+            )
+        try:
             probe = f"{self.base}/.egovid-probe"
             self.fs.pipe_file(probe, b"ok")
             self.fs.rm_file(probe)

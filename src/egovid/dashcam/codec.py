@@ -59,7 +59,9 @@ START_KEY, START_BASELINE = 0, 1
 
 @dataclass
 class EncodedSegment:
-    """Packets of a segment plus what the encoder saw."""
+    """Packets of a segment plus what the encoder saw. ``blob`` is the whole segment blob, unless
+    the packets went to a ``spool`` file as they came (then ``blob`` is empty and :meth:`chunks`
+    gives the blob's bytes: the header, then the spool)."""
 
     blob: bytes
     frames: int
@@ -69,6 +71,20 @@ class EncodedSegment:
     # SHA-256 (first RUN_DIGEST_CHARS hex digits) of each random-access run's pictures; none
     # when the segment is one run (recon_digest covers it)
     run_digests: list[str] = field(default_factory=list)
+    header: bytes = b""
+    nbytes: int = 0  # size of the blob
+    run_offsets: list[int] = field(default_factory=list)  # see run_offsets()
+    spool: object = None
+
+    def chunks(self, size: int = 1 << 20) -> Iterator[bytes]:
+        """The blob's bytes, in pieces of at most ``size``."""
+        if self.spool is None:
+            yield self.blob
+            return
+        yield self.header
+        self.spool.seek(0)
+        while block := self.spool.read(size):
+            yield block
 
 
 @dataclass(frozen=True)
@@ -129,10 +145,21 @@ def pack(
     starts: tuple[int, ...] | list[int] = (START_KEY,),
 ) -> bytes:
     """A segment blob: header + run layout + length-prefixed packets (in coding order)."""
+    return pack_header(width, height, q, len(packets), gop, refresh, starts) + b"".join(map(frame_packet, packets))
+
+
+def pack_header(
+    width: int, height: int, q: int, n_packets: int, gop: int, refresh: int, starts: tuple[int, ...] | list[int]
+) -> bytes:
+    """The header and run layout of a segment blob of ``n_packets`` packets."""
     pw, ph = vpx.padded_size(width, height)
-    head = _HEADER.pack(MAGIC, VERSION, width, height, pw, ph, len(packets), q, gop)
-    head += _LAYOUT.pack(refresh, len(starts)) + bytes(starts)
-    return head + b"".join(struct.pack("<I", len(p)) + p for p in packets)
+    head = _HEADER.pack(MAGIC, VERSION, width, height, pw, ph, n_packets, q, gop)
+    return head + _LAYOUT.pack(refresh, len(starts)) + bytes(starts)
+
+
+def frame_packet(packet: bytes) -> bytes:
+    """A packet as the blob stores it (length-prefixed)."""
+    return struct.pack("<I", len(packet)) + packet
 
 
 def _damaged(what: str = "is truncated") -> EgovidError:
@@ -326,6 +353,7 @@ def encode_segment(
     *,
     verify: bool = False,
     clock: dict | None = None,
+    spool=None,
 ) -> EncodedSegment:
     """Encode unpadded I420 frames; ``baselines(k)`` gives frame k's padded baseline (or None).
 
@@ -335,7 +363,8 @@ def encode_segment(
     follow display order whatever the coding order. ``verify``: a decoder follows the encoder
     packet by packet with the same reference loads, and every picture it gives must be the
     encoder's reconstruction (else :class:`EgovidError`, before anything is stored).
-    ``clock['encode']`` / ``clock['verify']`` accumulate seconds."""
+    ``clock['encode']`` / ``clock['verify']`` accumulate seconds. ``spool``: a binary file the
+    packets are written to as they come (memory stays flat however long the segment)."""
     vpx.self_test()
     pw, ph = vpx.padded_size(width, height)
     enc = vpx.VP9Encoder(pw, ph, settings)
@@ -345,6 +374,8 @@ def encode_segment(
     q_between = min(63, settings.q + settings.gop_dq)
     grey = np.full((ph * 3 // 2, pw), 128, np.uint8)
     packets: list[bytes] = []
+    body = {"packets": 0, "bytes": 0}
+    run_body: list[int] = []  # offset of each run's first packet after the header
     starts: list[int] = []
     size_of: dict[int, int] = {}
     pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -352,6 +383,14 @@ def encode_segment(
     run_h = hashlib.sha256()  # the current random-access run's pictures (with settings.refresh > 0)
     run_digests: list[str] = []
     acc = {"se": 0.0, "pix": 0, "next": 0}
+
+    def emit(pkt: bytes) -> None:
+        if spool is not None:
+            spool.write(frame_packet(pkt))
+        else:
+            packets.append(pkt)
+        body["packets"] += 1
+        body["bytes"] += 4 + len(pkt)
 
     def code(frame, role, golden=None, last=None, q=None) -> tuple[bytes, np.ndarray]:
         t0 = time.perf_counter()
@@ -371,7 +410,7 @@ def encode_segment(
     def finish(k: int, frame: np.ndarray, coded: tuple[bytes, np.ndarray]) -> np.ndarray:
         nonlocal run_h
         pkt, padded_rec = coded
-        packets.append(pkt)
+        emit(pkt)
         size_of[k] = size_of.get(k, 0) + len(pkt)
         pending[k] = (frame, vpx.crop_i420(padded_rec, width, height))
         while acc["next"] in pending:
@@ -406,10 +445,11 @@ def encode_segment(
             if first is None:
                 break
             b0 = base(k0)
+            run_body.append(body["bytes"])
             if b0 is not None:  # the run starts from the older drive instead of a keyframe
                 starts.append(START_BASELINE)
                 dummy, _ = code(grey, "key")
-                packets.append(dummy)
+                emit(dummy)
                 size_of[k0] = len(dummy)
                 finish(k0, first, code(pad(first), "ra", b0))
             else:
@@ -439,15 +479,19 @@ def encode_segment(
         enc.close()
         if dec is not None:
             dec.close()
-    if not packets:
+    if not body["packets"]:
         raise EgovidError("a segment with no frames cannot be encoded")
     if settings.refresh and k0 % settings.refresh:
         run_digests.append(run_h.hexdigest()[:RUN_DIGEST_CHARS])
     mse = acc["se"] / max(acc["pix"], 1)
     psnr = 10 * np.log10(255.0**2 / mse) if mse > 0 else 100.0
     sizes = [size_of[k] for k in range(k0)]
-    blob = pack(width, height, settings.q, packets, gop, settings.refresh, starts)
-    return EncodedSegment(blob, k0, h.hexdigest(), float(psnr), sizes, run_digests)
+    header = pack_header(width, height, settings.q, body["packets"], gop, settings.refresh, starts)
+    blob = b"" if spool is not None else header + b"".join(map(frame_packet, packets))
+    offsets = [len(header) + o for o in run_body] + [len(header) + body["bytes"]]
+    return EncodedSegment(
+        blob, k0, h.hexdigest(), float(psnr), sizes, run_digests, header, offsets[-1], offsets, spool
+    )
 
 
 def decode_segment(

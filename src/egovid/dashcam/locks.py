@@ -23,7 +23,6 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
-import math
 import os
 import re
 from abc import ABC, abstractmethod
@@ -40,22 +39,22 @@ _BUSY = "wait for the running ingest to finish (nothing is lost by waiting), the
 
 
 def cell_keys(xy: np.ndarray, pad: float = 0.0) -> set[str]:
-    """Area keys (``c{ix}_{iy}``) of the squares within ``pad`` metres of the points ``xy`` (N, 2),
-    and of the squares the segments between consecutive points pass (points are sampled every
-    ``CELL / 4`` metres along them)."""
+    """Area keys (``c{ix}_{iy}``) of the squares that the points ``xy`` (N, 2, metres), and the
+    segments between consecutive points (sampled every ``CELL / 4`` metres), come within ``pad``
+    metres of (in x and in y)."""
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     if len(xy) > 1:
         seg = np.diff(xy, axis=0)
         n = np.maximum(1, np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / (CELL / 4))).astype(int)
         parts = [xy[:-1][i] + seg[i] * (np.arange(n[i])[:, None] / n[i]) for i in range(len(seg))]
         xy = np.vstack([*parts, xy[-1:]])
+    lo = np.floor((xy - pad) / CELL).astype(np.int64)
+    hi = np.floor((xy + pad) / CELL).astype(np.int64)
     keys: set[str] = set()
-    r = math.ceil(pad / CELL)
-    ij = np.unique(np.floor(xy / CELL).astype(np.int64), axis=0)
-    for i, j in ij:
-        for di in range(-r, r + 1):
-            for dj in range(-r, r + 1):
-                keys.add(f"c{i + di}_{j + dj}")
+    for (i0, j0), (i1, j1) in zip(lo, hi, strict=True):
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                keys.add(f"c{i}_{j}")
     return keys
 
 

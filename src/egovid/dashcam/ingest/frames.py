@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from egovid.dashcam.align import OrbScorer, ScaleRefiner, small_gray
+from egovid.dashcam.align import MatchCache, OrbScorer, ScaleRefiner, small_gray
 from egovid.dashcam.extract import DriveFrames, FrameSource
 from egovid.io.video import iter_frames
 from egovid.motion.features import FrameFeatures
@@ -55,11 +55,21 @@ class RefFrames:
     its random-access run (SeqSLAM may jump back)."""
 
     def __init__(
-        self, source: FrameSource, drive_id: int, frame_start: int, m: int, size: tuple[int, int], clock: dict
+        self,
+        source: FrameSource,
+        drive_id: int,
+        frame_start: int,
+        m: int,
+        size: tuple[int, int],
+        clock: dict,
+        refine_radius: int = 3,
+        refine_features: int = 1000,
     ) -> None:
         self.drive = DriveFrames(source, drive_id, cache=2)
         self.f0, self.m, self.size = frame_start, m, size
-        self.scorer, self.refiner = OrbScorer(), ScaleRefiner()
+        matches = MatchCache()
+        self.scorer = OrbScorer(matcher=matches)
+        self.refiner = ScaleRefiner(refine_features, radius=refine_radius, matcher=matches)
         self._image: dict[int, np.ndarray] = {}
         self._gray: dict[int, np.ndarray] = {}
         self._feats: dict[int, FrameFeatures] = {}
@@ -91,7 +101,10 @@ class RefFrames:
         return f
 
     def fine(self, j: int) -> FrameFeatures:
-        """ORB features of the vertical-scale refinement (align.ScaleRefiner)."""
+        """ORB features of the vertical-scale refinement (align.ScaleRefiner; the search's when it
+        has none of its own)."""
+        if not self.refiner.n_features:
+            return self.feats(j)
         f = self._fine.get(j)
         if f is None:
             f = self._fine[j] = self.refiner.features(self.gray(j))

@@ -3,7 +3,7 @@
 
 ::
 
-    decode_once ──► [first 48 frames: light] ──► choose_baseline
+    decode_once ──► [first 24 frames: light] ──► choose_baseline
          │                                            │
          └──► small grey ──► StreamingAlignment ──► match k final ──► baseline k (older drive,
                                                                           decoded forward once)
@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import queue
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -44,7 +45,7 @@ from egovid.dashcam.ingest.stages import choose_baseline
 from egovid.dashcam.ingest.timeline import StreamingAlignment
 from egovid.errors import EgovidError
 
-LOOKAHEAD = 48  # frames whose light chooses the baseline (two random-access periods)
+LOOKAHEAD = 24  # frames whose light chooses the baseline (one random-access period)
 QUEUE = 6  # frames in flight between the producer and the encoder
 
 
@@ -87,6 +88,13 @@ class _Pipe:
 
 class _StoppedError(Exception):
     pass
+
+
+class _Discard:
+    """A spool that keeps nothing (the standalone encode is measured, not stored)."""
+
+    def write(self, data: bytes) -> int:
+        return len(data)
 
 
 class _PieceRun:
@@ -143,7 +151,16 @@ class _PieceRun:
             if self.ref is not None:
                 ref = self.ref
                 m = ref.frame_end - ref.frame_start
-                self.refs = RefFrames(self.source, ref.drive_id, ref.frame_start, m, self.size, self.clock)
+                self.refs = RefFrames(
+                    self.source,
+                    ref.drive_id,
+                    ref.frame_start,
+                    m,
+                    self.size,
+                    self.clock,
+                    self.opts.refine_radius,
+                    self.opts.refine_features,
+                )
                 order = np.argsort(ref.positions, kind="stable")
                 prior = np.interp(self.piece.positions, ref.positions[order], order.astype(float))
                 speed_ref = np.abs(np.gradient(ref.positions.astype(float)) * ref.fps) if m > 1 else np.zeros(m)
@@ -262,7 +279,7 @@ def encode_piece(
 
     def standalone() -> None:
         try:
-            alone["seg"] = _encode_from(pipes[1], clock, "standalone", w, h, settings)
+            alone["seg"] = _encode_from(pipes[1], clock, "standalone", w, h, settings, spool=_Discard())
         except BaseException as exc:
             alone["error"] = exc
             pipes[1].stop.set()
@@ -272,36 +289,39 @@ def encode_piece(
     producer.start()
     if helper is not None:
         helper.start()
-    try:
-        enc = _encode_from(pipes[0], clock, "encode", w, h, settings, progress=cb, verify=opts.verify)
-    finally:
-        for p in pipes:
-            p.stop.set()
-        producer.join()
-        if helper is not None:
-            helper.join()
-    if "error" in alone:
-        raise alone["error"]
-    t0 = time.perf_counter()
-    sha = source.blobs.put(enc.blob)
-    run.tick("store", t0)
+    with tempfile.TemporaryFile(prefix="egovid-segment-") as spool:
+        try:
+            enc = _encode_from(pipes[0], clock, "encode", w, h, settings, progress=cb, verify=opts.verify, spool=spool)
+        finally:
+            for p in pipes:
+                p.stop.set()
+            producer.join()
+            if helper is not None:
+                helper.join()
+        if "error" in alone:
+            raise alone["error"]
+        t0 = time.perf_counter()
+        sha = source.blobs.put_chunks(enc.chunks())
+        run.tick("store", t0)
     ref = run.ref
-    standalone_bytes = len(alone["seg"].blob) if "seg" in alone else None
+    standalone_bytes = alone["seg"].nbytes if "seg" in alone else None
     params = {
         "width": w,
         "height": h,
         "q": opts.q,
         "speed": opts.speed,
         "realtime": opts.realtime,
+        "threads": opts.threads,
         "gop": opts.gop,
         "refresh": opts.refresh,
         "preset": opts.preset,
         "recon_digest": enc.recon_digest,
         "run_digests": enc.run_digests,
-        "run_offsets": codec.run_offsets(enc.blob),
+        "run_offsets": enc.run_offsets,
         "psnr_y": enc.psnr_y,
         "aligner": opts.aligner,
         "standalone_bytes": standalone_bytes,
+        "standalone_psnr_y": alone["seg"].psnr_y if "seg" in alone else None,
         "stopped_frames": int(run.stopped.sum()),
         "prior_fallbacks": run.fallbacks,
     }
@@ -313,7 +333,7 @@ def encode_piece(
         run.refmap,
         run.align,
         sha,
-        len(enc.blob),
+        enc.nbytes,
         params,
         run.illum_sum / max(run.n, 1),
         enc.psnr_y,

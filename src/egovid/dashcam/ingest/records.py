@@ -159,6 +159,7 @@ class PieceReport:
     stopped_frames: int
     prior_fallbacks: int
     seconds: float
+    peak_frames_held: int = 0  # frames of both drives in memory at once, at most
 
     @property
     def saving(self) -> float | None:

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from egovid.dashcam import vpx
@@ -22,7 +24,8 @@ from egovid.dashcam.ingest.piece import encode_piece
 from egovid.dashcam.ingest.records import DriveInput, DriveTrack, IngestReport
 from egovid.dashcam.ingest.stages import NEAR, commit, paths_along, probe_stage, split_stage, track_stage, track_xy
 from egovid.dashcam.locks import ORIGIN_KEY, AreaSession, cell_keys
-from egovid.dashcam.store import Archive
+from egovid.dashcam.store import Archive, ArchiveSpec
+from egovid.engine import EngineConfig, run_tasks
 from egovid.errors import EgovidError
 
 Progress = Callable[[str, int, int], None]
@@ -103,3 +106,85 @@ def ingest(
     """Ingest one drive from its video and GPS files (``gps`` None: the file beside the video)."""
     inp = DriveInput(Path(video), Path(gps) if gps is not None else None, name, start_utc, gps_offset)
     return ingest_drive(archive, inp, options, progress)
+
+
+# -- many drives --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class IngestJob:
+    """One drive for a task: which archive (its spec: a worker needs no marker), the drive, how."""
+
+    archive: ArchiveSpec
+    drive: DriveInput
+    options: IngestOptions
+
+
+@dataclass
+class IngestResult:
+    """A task's end: the drive's report, or the one-line reason it was refused (a user error: not
+    retried)."""
+
+    name: str
+    report: IngestReport | None = None
+    error: str | None = None
+
+
+def ingest_task(job: IngestJob) -> IngestResult:
+    """The whole ingest of one drive, as a task for a worker process (engine.run_tasks). Safe to run
+    again after its worker died: its token makes a repeated commit return the committed drive."""
+    archive = Archive.from_spec(job.archive)
+    try:
+        return IngestResult(job.drive.drive_name, ingest_drive(archive, job.drive, job.options))
+    except EgovidError as exc:
+        return IngestResult(job.drive.drive_name, error=exc.one_line())
+    finally:
+        archive.close()
+
+
+@dataclass
+class Batch:
+    """Drives checked and ordered for :func:`ingest_many`: ``jobs`` oldest first, and for each
+    drive the earlier ones of this batch it crosses paths with (``after``: it starts when they are
+    committed, so it can use them as its baseline)."""
+
+    jobs: list[IngestJob]
+    after: dict[str, list[str]]
+
+
+def plan_batch(archive: Archive, drives: list[DriveInput], options: IngestOptions) -> Batch:
+    """Check every drive before any work starts (video, GPS, name) and order them: by UTC start,
+    each after the earlier drives whose areas (locks.cell_keys) it shares."""
+    opts = options.check()
+    names = [d.drive_name for d in drives]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise EgovidError(
+            f"several videos would be named {', '.join(dup)}", "rename them, or ingest them apart with --name"
+        )
+    for name in names:
+        if archive.catalogue.drive(name) is not None:
+            raise EgovidError(f"a drive named {name!r} is already in the archive", "leave that video out, or rename it")
+    checked = []
+    for d in drives:
+        vp = probe_stage(d)
+        checked.append((d, track_stage(d, vp)))
+    checked.sort(key=lambda dt: float(dt[1].frame_utc[0]))
+    origin = archive.origin or checked[0][1].first_fix
+    areas = [cell_keys(track_xy(t, origin), pad=NEAR) for _, t in checked]
+    after: dict[str, list[str]] = {}
+    for i, (d, _) in enumerate(checked):
+        after[d.drive_name] = [checked[j][0].drive_name for j in range(i) if areas[i] & areas[j]]
+    jobs = [IngestJob(archive.spec, replace(d, token=d.token or uuid.uuid4().hex), opts) for d, _ in checked]
+    return Batch(jobs, after)
+
+
+def ingest_many(archive: Archive, batch: Batch, config: EngineConfig) -> Iterator[IngestResult]:
+    """Run a batch on the task engine (this process, a local pool of ``config.workers`` processes,
+    or a Dask cluster); yields each drive's result as it ends."""
+    keys = [j.drive.drive_name for j in batch.jobs]
+    for outcome in run_tasks(ingest_task, batch.jobs, config=config, keys=keys, name="ingest", after=batch.after):
+        if outcome.ok:
+            yield outcome.value
+        else:
+            yield IngestResult(outcome.key, error=f"{type(outcome.error).__name__}: {outcome.error}")

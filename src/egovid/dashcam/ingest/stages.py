@@ -438,6 +438,7 @@ def commit(
                     enc.stopped_frames,
                     enc.prior_fallbacks,
                     enc.seconds,
+                    enc.peak_frames_held,
                 )
             )
         if inp.token:

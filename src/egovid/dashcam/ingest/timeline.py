@@ -72,11 +72,12 @@ class StreamingAlignment:
                 j = self.last
             self.last = j
             return [j]
-        j, _ = self.search.step(k, self.ref.scorer.features(gray))
+        feat = self.ref.scorer.features(gray)
+        j, _ = self.search.step(k, feat)
         self.fallbacks = self.search.fallbacks
         if self.kind == "orb-plain":
             return [j]
-        self.fine[k] = self.ref.refiner.features(gray)
+        self.fine[k] = self.ref.refiner.features(gray) if self.ref.refiner.n_features else feat
         out = []
         for s in self.sm1.push(j):
             k1 = self.k_sm1

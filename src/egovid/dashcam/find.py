@@ -165,3 +165,20 @@ def stretches(
             )
         )
     return out
+
+
+def search(fleet, q: Query) -> list[Stretch]:
+    """Every matching stretch of the archive's live drives, by start time: the spatial index names
+    the candidates (:meth:`FleetStore.candidates`), each candidate's own track decides."""
+    near = (q.near[0], q.near[1], q.radius) if q.near is not None else None
+    ids = set(fleet.candidates(q.box(), q.t_from, q.t_to, near))
+    out: list[Stretch] = []
+    for d in fleet.live_drives():
+        if d.id not in ids:
+            continue
+        track = fleet.track(d.id)
+        if track is None:
+            continue
+        kind = fleet.meta(d.id).kind
+        out += stretches(q, d.name, kind, fleet.frame_utc(d.id, d.fps), *track, fps=d.fps)
+    return sorted(out, key=lambda s: (s.start_utc, s.drive))

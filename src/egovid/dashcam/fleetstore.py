@@ -25,7 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from egovid.dashcam.catalogue import Catalogue, PostgresCatalogue, SqliteCatalogue, _arr, _blob
+from egovid.dashcam.catalogue import Catalogue, Drive, PostgresCatalogue, SqliteCatalogue, _arr, _blob
+from egovid.dashcam.retention import ForgetPlan
+from egovid.errors import EgovidError
 
 FLEET_SCHEMA = 1
 CHUNK = 32  # fixes per spatial-index entry
@@ -108,8 +110,6 @@ class FleetStore:
         version = self.cat.get_meta("fleet_schema")
         if version is not None:
             if int(version) > FLEET_SCHEMA:
-                from egovid.errors import EgovidError
-
                 raise EgovidError(f"the archive's fleet tables are version {version}", "upgrade egovid")
             self.postgis = self.cat.get_meta("fleet_postgis") or None
             return
@@ -322,8 +322,48 @@ class FleetStore:
                 args = (*args, near[1], near[0], near[2])
         return sorted(int(r[0]) for r in self._q(sql, args))
 
+    def live_drives(self) -> list[Drive]:
+        """The drives a user sees: every drive but the hidden references of forgotten ones."""
+        hidden = {int(r[0]) for r in self._q("SELECT drive_id FROM drive_meta WHERE state <> 'live'")}
+        return [d for d in self.cat.drives() if d.id not in hidden]
+
+    def live_drive(self, key: str) -> Drive:
+        """A live drive by name or id; :class:`EgovidError` naming the drives there are if none."""
+        d = self.cat.drive(key)
+        if d is None or self.meta(d.id).state != "live":
+            names = ", ".join(x.name for x in self.live_drives()) or "none"
+            raise EgovidError(f"no drive {key!r} in the archive", f"drives in the archive: {names}")
+        return d
+
+    def blob_names(self) -> set[str]:
+        """Blobs the fleet tables refer to (audio and telemetry)."""
+        return {r[0] for r in self._q("SELECT streams_blob FROM drive_meta WHERE streams_blob IS NOT NULL")}
+
+    def streams_bytes(self, exclude: set[int] | None = None) -> int:
+        """Bytes of the audio/telemetry blobs of all drives but ``exclude``."""
+        rows = self._q("SELECT drive_id, streams_bytes FROM drive_meta WHERE streams_blob IS NOT NULL")
+        return sum(int(b or 0) for i, b in rows if not exclude or int(i) not in exclude)
+
     # -- deletion -------------------------------------------------------------------------------
-    def delete_drive(self, drive_id: int) -> None:
-        """Remove a drive's fleet rows (its catalogue rows are the caller's)."""
-        for table in ("track_index", "drive_tracks", "drive_parts", "drive_meta"):
-            self._q(f"DELETE FROM {table} WHERE drive_id = ?", (drive_id,))
+    def apply_forget(self, plan: ForgetPlan, targets: set[int], drives: dict[int, Drive]) -> None:
+        """Carry out a retention plan in the open transaction: delete the segments it drops and the
+        sequences of every forgotten drive (so no new drive is coded against them), purge the drives
+        nothing needs, hide the others (renamed ``NAME~forgotten-ID``)."""
+        q = self._q
+        gone = targets | set(plan.keep_as_reference) | set(plan.purge_drives)
+        for i in gone:
+            q("DELETE FROM sequences WHERE drive_id = ?", (i,))
+        for sid in plan.delete_segments:
+            q("DELETE FROM segments WHERE id = ?", (sid,))
+        for i in gone:
+            q("UPDATE drive_meta SET streams_blob = NULL, streams_bytes = 0 WHERE drive_id = ?", (i,))
+        for i in plan.keep_as_reference:
+            if self.meta(i).state == "live":
+                q("UPDATE drive_meta SET state = 'reference' WHERE drive_id = ?", (i,))
+                q("UPDATE drives SET name = ? WHERE id = ?", (f"{drives[i].name}~forgotten-{i}", i))
+        for i in plan.purge_drives:
+            for table in ("track_index", "drive_tracks", "drive_parts", "drive_meta"):
+                q(f"DELETE FROM {table} WHERE drive_id = ?", (i,))
+            q("UPDATE paths SET created_by = NULL WHERE created_by = ?", (i,))
+            q("DELETE FROM meta WHERE key LIKE 'ingest:%' AND value = ?", (str(i),))
+            q("DELETE FROM drives WHERE id = ?", (i,))

@@ -283,6 +283,6 @@ def read_embedded_gps(video: str | os.PathLike) -> EmbeddedGps | None:
         found = fixes_from_nmea_samples(samples, name)
         if found is not None:
             return found
-    from egovid.io.metadata import read_embedded
+    from egovid.io.metadata import read_tags
 
-    return fixes_from_exiftool(read_embedded(video), name)
+    return fixes_from_exiftool(read_tags(video, embedded=True, duplicates=True), name)

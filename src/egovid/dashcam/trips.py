@@ -19,9 +19,11 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from egovid.io.video import Frame
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".ts", ".m4v", ".mts")
 KINDS = ("drive", "event", "parking")
@@ -220,3 +222,19 @@ def plan_trips(
         trips.append(open_trips[f.channel])
     trips.sort(key=lambda t: (t.start_utc is None, t.start_utc or 0.0, _name_key(t.parts[0].file)))
     return TripPlan(trips, skipped)
+
+
+def iter_trip_frames(paths: list[str | os.PathLike], **kwargs) -> Iterator[Frame]:
+    """The frames of a trip's files back to back, as one video: indices continue from file to file
+    (``kwargs`` go to :func:`egovid.io.video.iter_frames`, e.g. ``i420=True``). Times are those of
+    each file (seconds from its own first frame)."""
+    from egovid.io.video import iter_frames
+
+    base = 0
+    for p in paths:
+        n = 0
+        for fr in iter_frames(p, **kwargs):
+            fr.index = base + fr.index
+            n += 1
+            yield fr
+        base += n

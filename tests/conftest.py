@@ -19,13 +19,14 @@ from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 
 
-def run_cli(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
-    """Run ``python -m egovid ARGS`` and capture its output (text)."""
+def run_cli(*args: str, timeout: float = 600, cwd: str | os.PathLike | None = None) -> subprocess.CompletedProcess:
+    """Run ``python -m egovid ARGS`` (in folder ``cwd``) and capture its output (text)."""
     return subprocess.run(
         [sys.executable, "-m", "egovid", *map(str, args)],
         capture_output=True,
         text=True,
         timeout=timeout,
+        cwd=cwd,
         env={"COLUMNS": "200", "PATH": "/usr/bin:/bin", "HOME": str(Path.home()), "TERM": "dumb"},
     )
 

@@ -33,10 +33,12 @@ def init(
     ),
 ) -> None:
     """Create an empty archive."""
+    from egovid.cli.validate import output_folder
     from egovid.dashcam.archive import Archive
     from egovid.dashcam.catalogue import redact_url
     from egovid.dashcam.vpx import self_test
 
+    output_folder(archive, what="archive folder")
     ar = Archive.create(archive, db)
     cat = ar.meta["catalogue"]
     where = "SQLite" if cat["backend"] == "sqlite" else f"PostgreSQL {redact_url(cat['url'])}, schema {cat['schema']}"

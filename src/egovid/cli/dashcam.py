@@ -84,9 +84,11 @@ def ingest(
     """
     import datetime as dt
 
+    from egovid.cli.validate import number
     from egovid.dashcam.archive import IngestOptions
     from egovid.errors import EgovidError
 
+    number(gps_offset, "--gps-offset", lo=-7 * 86400, hi=7 * 86400, unit="s")
     ar = _open(archive)
     start_utc = None
     if start is not None:

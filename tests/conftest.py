@@ -27,8 +27,17 @@ def run_cli(*args: str, timeout: float = 600, cwd: str | os.PathLike | None = No
         text=True,
         timeout=timeout,
         cwd=cwd,
-        env={"COLUMNS": "200", "PATH": "/usr/bin:/bin", "HOME": str(Path.home()), "TERM": "dumb"},
+        env=cli_env(),
     )
+
+
+def cli_env() -> dict[str, str]:
+    """A plain environment for a CLI subprocess (no terminal, wide lines); PYTHONPATH is kept so
+    the process runs the code under test."""
+    env = {"COLUMNS": "200", "PATH": "/usr/bin:/bin", "HOME": str(Path.home()), "TERM": "dumb"}
+    if "PYTHONPATH" in os.environ:
+        env["PYTHONPATH"] = os.environ["PYTHONPATH"]
+    return env
 
 
 def assert_one_error(r: subprocess.CompletedProcess, needle: str = "") -> None:

@@ -23,7 +23,7 @@ from egovid.io.files import atomic_write_text, output_transaction
 from egovid.io.video import count_frames, iter_frames, probe
 from egovid.synth.fpv import render_fpv
 
-from conftest import _wait_for, assert_one_error, run_cli
+from conftest import _wait_for, assert_one_error, cli_env, run_cli
 
 
 def _listing(folder: Path) -> list[str]:
@@ -161,11 +161,10 @@ def _wait_for_part(folder: Path, proc: subprocess.Popen) -> None:
 
 @pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)], ids=["SIGTERM", "SIGINT"])
 def test_signal_mid_write_removes_partial_output(tmp_path, sig, code):
-    env = {"PATH": "/usr/bin:/bin", "HOME": str(Path.home()), "TERM": "dumb", "COLUMNS": "200"}
     proc = subprocess.Popen(
         [sys.executable, "-m", "egovid", "synth", "fpv", "o.mp4", "--frames", "3000", "--size", "320x240"],
         cwd=tmp_path,
-        env=env,
+        env=cli_env(),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -185,7 +185,7 @@ def outputs(inputs: Iterable[Path | None], *specs: tuple[Path | None, str] | tup
         for src in ins:
             if _same_file(path, src):
                 raise EgovidError(
-                    f"{what} {path} is the input {src}: writing it would destroy the input",
+                    f"{what} {path} is the input {src}: writing it would overwrite the input",
                     "choose another output name",
                 )
         _check_one(path, exts, what)

@@ -65,10 +65,7 @@ def run(
 @app.command("report")
 def report_cmd(run_dir: Path = typer.Argument(..., help="Run folder of `egovid voeval run`.")) -> None:
     """Factor matrices, heatmaps and the "which VO for my application" answers (HTML + Markdown)."""
-    from egovid.cli.validate import input_folder, writable_folder
     from egovid.voeval.report import write_report
-
-    writable_folder(input_folder(run_dir, "run folder"), "run folder")
 
     h_, m_ = write_report(run_dir)
     console.print(f"report {h_}\n       {m_}")

@@ -44,10 +44,12 @@ def init(
     For an archive spread over machines, keep the catalogue in PostgreSQL (--db) and the bitstreams
     in an object store (--blobs); the folder then holds only the marker that names them.
     """
+    from egovid.cli.validate import output_folder
     from egovid.dashcam.catalogue import redact_url
     from egovid.dashcam.store import Archive
     from egovid.dashcam.vpx import self_test
 
+    output_folder(archive, what="archive folder")
     ar = Archive.create(archive, db, blobs)
     cat = ar.meta["catalogue"]
     where = "SQLite" if cat["backend"] == "sqlite" else f"PostgreSQL {redact_url(cat['url'])}, schema {cat['schema']}"
@@ -145,11 +147,13 @@ def ingest(
     """
     import datetime as dt
 
+    from egovid.cli.validate import number
     from egovid.dashcam.ingest import DriveInput, IngestOptions
     from egovid.dashcam.ingest.run import ingest_drive, ingest_many, plan_batch
     from egovid.engine import EngineConfig, scheduler_address
     from egovid.errors import EgovidError
 
+    number(gps_offset, "--gps-offset", lo=-7 * 86400, hi=7 * 86400, unit="s")
     ar = _open(archive)
     files = _videos(videos)
     if len(files) > 1 and (gps is not None or name is not None or start is not None):

@@ -34,6 +34,7 @@ import numpy as np
 from egovid.errors import EgovidError
 
 CELL = 250.0  # metres: side of an area-lock square
+FILE_LOCKS = 256  # lock files an SQLite archive's areas are hashed onto
 ORIGIN_KEY = "_origin"  # sorts before the cells: taken first
 _BUSY = "wait for the running ingest to finish (nothing is lost by waiting), then run it again"
 
@@ -65,9 +66,13 @@ class AreaSession(ABC):
         self.held: list[str] = []
         self.on_wait = on_wait
 
+    def _name(self, key: str) -> str:
+        """The lock that stands for ``key`` (several keys may share one)."""
+        return key
+
     def acquire(self, keys: Iterable[str]) -> None:
         """Hold ``keys`` too (blocking until they are free)."""
-        want = sorted(set(keys) - set(self.held))
+        want = sorted({self._name(k) for k in keys} - set(self.held))
         if not want:
             return
         if self.held and want[0] < self.held[-1]:  # out of order: start again in order
@@ -119,10 +124,16 @@ class ArchiveLocks(ABC):
 
 
 class _FileSession(AreaSession):
+    """Area keys hashed onto :data:`FILE_LOCKS` lock files (a bounded number of files, however
+    large the fleet's territory; two areas sharing a file only wait for each other)."""
+
     def __init__(self, folder: Path, on_wait) -> None:
         super().__init__(on_wait)
         self.folder = folder
         self._fh: dict[str, object] = {}
+
+    def _name(self, key: str) -> str:
+        return f"{int.from_bytes(hashlib.sha256(key.encode()).digest()[:4], 'big') % FILE_LOCKS:03d}"
 
     def _open(self, key: str):
         if not re.fullmatch(r"[A-Za-z0-9_.-]+", key):
@@ -152,8 +163,8 @@ class _FileSession(AreaSession):
 
 class FileLocks(ArchiveLocks):
     """flock(2) locks on files in the archive folder: ``.lock`` (the archive lock) and
-    ``.locks/KEY.lock`` (areas). Each session opens its own files, so threads of one process
-    exclude each other as separate processes do."""
+    ``.locks/NNN.lock`` (areas, hashed onto 256 files). Each session opens its own files, so
+    threads of one process exclude each other as separate processes do."""
 
     def __init__(self, root: str | os.PathLike) -> None:
         self.root = Path(root)

@@ -30,6 +30,10 @@ import cv2
 import numpy as np
 
 MIN_INLIERS = 12
+#: Matches the joint rotation + translation refinement uses at most.
+ESSENTIAL_POINTS = 200
+#: Iterations of that refinement at most.
+ESSENTIAL_MAX_ITERATIONS = 15
 
 
 @dataclass
@@ -127,9 +131,14 @@ def _translation_given(Q: np.ndarray, bi: np.ndarray, bj: np.ndarray) -> np.ndar
 def _refine_essential(
     Q0: np.ndarray, t0: np.ndarray, xi: np.ndarray, xj: np.ndarray, focal: float, scale_px: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Joint (rotation, translation direction) refinement of the Sampson error (robust)."""
-    from scipy.optimize import least_squares
+    """Joint (rotation, translation direction) refinement of the Sampson error (robust).
 
+    Levenberg-Marquardt on 5 parameters (a rotation vector on ``Q0`` and two coordinates of the
+    translation direction in the tangent plane of ``t0``) with the soft-L1 loss of scale
+    ``scale_px`` by iteratively reweighted least squares, and a forward-difference Jacobian: the
+    same problem SciPy's ``least_squares(loss="soft_l1")`` solves, without its per-iteration
+    overhead (this refinement was the most expensive step of a pair).
+    """
     # Translation direction on the sphere: t = normalise(t0 + a*u + b*v) with u, v ⟂ t0.
     u = np.cross(t0, [1.0, 0.0, 0.0] if abs(t0[0]) < 0.9 else [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
@@ -143,8 +152,38 @@ def _refine_essential(
         Q, t = unpack(p)
         return sampson_px(Q, t, xi, xj, focal)
 
-    sol = least_squares(fun, np.zeros(5), loss="soft_l1", f_scale=scale_px, x_scale=1e-3, max_nfev=60)
-    return unpack(sol.x)
+    def cost(r: np.ndarray) -> float:
+        z = (r / scale_px) ** 2
+        return float(np.sum(2.0 * (np.sqrt(1.0 + z) - 1.0)))
+
+    p = np.zeros(5)
+    r = fun(p)
+    c = cost(r)
+    lam = 1e-3
+    h = 1e-7
+    for _ in range(ESSENTIAL_MAX_ITERATIONS):
+        J = np.empty((len(r), 5))
+        for k in range(5):
+            dp = p.copy()
+            dp[k] += h
+            J[:, k] = (fun(dp) - r) / h
+        w = 1.0 / np.sqrt(1.0 + (r / scale_px) ** 2)  # IRLS weights of the soft-L1 loss
+        A = (J * w[:, None]).T @ J
+        g = (J * w[:, None]).T @ r
+        while True:
+            step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
+            r_new = fun(p + step)
+            c_new = cost(r_new)
+            if c_new <= c or lam > 1e6:
+                break
+            lam *= 10.0
+        if c_new > c:
+            break
+        p, r, c = p + step, r_new, c_new
+        lam = max(lam / 10.0, 1e-9)
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    return unpack(p)
 
 
 def _information(Q: np.ndarray, bj: np.ndarray, sigma_rad: float) -> np.ndarray:
@@ -282,8 +321,13 @@ def rotation_from_correspondences(
     if loose.sum() - n_rot < max(8, 0.05 * n_rot):
         return rot
     t = _translation_given(Q, bi[loose], bj[loose])
+    # The 5-parameter refinement runs on at most ESSENTIAL_POINTS of the loose matches (an even
+    # stride through them, deterministic): it decides the model and starts from the rotation fit,
+    # so a few hundred points suffice, and it was the most expensive step of a pair.
+    sub = np.flatnonzero(loose)
+    sub = sub[np.linspace(0, len(sub) - 1, min(len(sub), ESSENTIAL_POINTS)).astype(int)]
     try:
-        Qe, te = _refine_essential(Q, t, xi[loose], xj[loose], focal, max(res_rot, 0.05))
+        Qe, te = _refine_essential(Q, t, xi[sub], xj[sub], focal, max(res_rot, 0.05))
     except (ValueError, np.linalg.LinAlgError):
         return rot
     d = np.abs(sampson_px(Qe, te, xi, xj, focal))

@@ -253,7 +253,7 @@ def resolve_camera(
         if HFOV_RANGE_DEG[0] < 2 * math.degrees(math.atan2(long_side / 2, f)) < HFOV_RANGE_DEG[1]:
             return CameraModel(Intrinsics.from_focal(w, h, f), "35mm-equivalent", f"{f35:g} mm (35 mm equivalent)", rot)
     return CameraModel(
-        Intrinsics.default(w, h), "default", f"default camera: {DEFAULT_FOCAL_AT_1080P:g} px at 1920 px", rot
+        Intrinsics.default(w, h), "default", f"{DEFAULT_FOCAL_AT_1080P:g} px at 1920 px, scaled to the long side", rot
     )
 
 

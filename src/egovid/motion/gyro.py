@@ -13,9 +13,9 @@ Gyroflow does, by comparing the gyro with the rotations vision measures between 
 * **axis mapping** ``M`` (camera = ``M`` · IMU): the least-squares rotation between the two
   angular-velocity series at that offset (Kabsch), snapped to the nearest signed permutation of
   the axes when it is within 20° of one, as real IMUs are mounted along the sensor axes;
-* **focal length**: with the gyro's rotations ``Q_ij`` between frames, the pixels of frame j
-  map to frame i by ``K Q_ij K⁻¹``; the focal length that minimises the (robust) reprojection
-  error of the matched points is the camera's, independently of any lens table.
+* **focal length**: vision's rotation about x and y is the picture's shift divided by the focal
+  length, so the slope of vision's rotations on the gyro's gives the focal length at which the
+  two agree (roll, which does not depend on it, is left out), independently of any lens table.
 
 Rates are in radians per second, times in seconds on the video clock, rotations camera-to-world
 in egovid's camera axes (x right, y down, z forward; see :mod:`egovid.geometry.rotations`).
@@ -378,17 +378,17 @@ def compare_rotations(R_a: np.ndarray, R_b: np.ndarray, weights: np.ndarray | No
 
 @dataclass(frozen=True)
 class FocalFit:
-    """Focal length fitted from gyro rotations against matched points.
+    """Focal length fitted from the gyro against vision.
 
-    ``focal_px`` in pixels of the full-resolution video; ``pairs`` frame pairs used;
-    ``residual_px`` median reprojection error at the optimum (work pixels); ``start_px`` the focal
-    length the vision side assumed before; ``well_posed`` whether the pairs turned enough about
-    the x and y axes for the focal length to be observable.
+    ``focal_px`` in pixels of the full-resolution video; ``pairs`` frame pairs used; ``scale``
+    the slope of vision's rotation about x and y on the gyro's at ``start_px`` (vision angles
+    scale with 1/focal); ``start_px`` the focal length vision assumed; ``well_posed`` whether
+    enough pairs turned about x or y for the focal length to be observable.
     """
 
     focal_px: float
     pairs: int
-    residual_px: float
+    scale: float
     start_px: float
     well_posed: bool
 
@@ -397,7 +397,7 @@ class FocalFit:
         return {
             "focal_px": round(self.focal_px, 2),
             "pairs": self.pairs,
-            "median_residual_px": round(self.residual_px, 4),
+            "vision_over_gyro_at_start": round(self.scale, 4),
             "start_focal_px": round(self.start_px, 2),
             "well_posed": self.well_posed,
         }
@@ -409,57 +409,35 @@ _MIN_FIT_TURN_DEG = 0.3
 _MIN_FIT_PAIRS = 15
 
 
-def fit_focal(
-    matches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
-    R_gyro: np.ndarray,
-    work_size: tuple[int, int],
-    scale: float,
-    start_focal_px: float,
-    *,
-    max_pairs: int = 400,
-) -> FocalFit:
-    """The focal length that makes the gyro's rotations explain the matched points.
+def fit_focal(pairs: list[tuple[int, int, np.ndarray]], R_gyro: np.ndarray, start_focal_px: float) -> FocalFit:
+    """The focal length at which vision's rotations have the gyro's magnitude.
 
-    ``matches[(i, j)] = (pts_i, pts_j)``: matched pixels (of the downscaled ``work_size`` =
-    (width, height) copy, ``scale`` = work width / video width) of frames i and j; ``R_gyro``
-    (N, 3, 3) the synced gyro's camera-to-world rotations of the frames. Minimises the robust
-    (Huber, 1 px) reprojection error of ``pts_j`` mapped by ``K R_i^T R_j K⁻¹`` onto ``pts_i``
-    over the focal length, on the pairs that turn enough about x or y to make it observable.
+    ``pairs``: ``(i, j, Q_ij)`` rotations vision measured between frames i and j with focal
+    length ``start_focal_px``; ``R_gyro`` (N, 3, 3) the synced gyro's rotations of the frames.
+    A rotation about x or y moves the picture by about focal x angle pixels, so vision's angle
+    about those axes scales with 1/focal (roll does not depend on it): the focal length is the
+    start times the least-squares slope of vision's x/y rotation components on the gyro's (pairs
+    with outlying residuals, beyond 3 robust standard deviations, left out). A pinhole focal
+    length of a fisheye lens depends on where in the picture it is measured; this one is where
+    vision measures, so vision and gyro agree with it.
     """
-    from scipy.optimize import minimize_scalar
-
-    w, h = work_size
-    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
-    used = []
-    for (i, j), (pi, pj) in sorted(matches.items()):
+    v, g = [], []
+    for i, j, Q in pairs:
         if j >= len(R_gyro):
             continue
-        Q = R_gyro[i].T @ R_gyro[j]
-        turn = np.degrees(np.linalg.norm(so3_log(Q)[:2]))
-        if turn >= _MIN_FIT_TURN_DEG and len(pi) >= 8:
-            used.append((Q, np.asarray(pi, float), np.asarray(pj, float), turn))
-    well_posed = len(used) >= _MIN_FIT_PAIRS
-    if not used:
+        gq = so3_log(R_gyro[i].T @ R_gyro[j])[:2]
+        if np.degrees(np.linalg.norm(gq)) >= _MIN_FIT_TURN_DEG:
+            v.append(so3_log(Q)[:2])
+            g.append(gq)
+    if not v:
         return FocalFit(start_focal_px, 0, float("nan"), start_focal_px, False)
-    if len(used) > max_pairs:  # keep the pairs that turn most
-        used = sorted(used, key=lambda u: -u[3])[:max_pairs]
-    Qs = [u[0] for u in used]
-    P_i = [u[1] - (cx, cy) for u in used]
-    P_j = [u[2] - (cx, cy) for u in used]
-
-    def errors(f_work: float) -> np.ndarray:
-        out = []
-        for Q, pi, pj in zip(Qs, P_i, P_j, strict=True):
-            x = np.column_stack([pj / f_work, np.ones(len(pj))]) @ Q.T
-            proj = f_work * x[:, :2] / x[:, 2:3]
-            out.append(np.linalg.norm(proj - pi, axis=1))
-        return np.concatenate(out)
-
-    def cost(log_f: float) -> float:
-        e = errors(math.exp(log_f))
-        return float(np.sum(np.where(e < 1.0, 0.5 * e * e, e - 0.5)))
-
-    f0 = start_focal_px * scale
-    res = minimize_scalar(cost, bounds=(math.log(f0 / 3), math.log(f0 * 3)), method="bounded", options={"xatol": 1e-4})
-    f_work = math.exp(res.x)
-    return FocalFit(f_work / scale, len(used), float(np.median(errors(f_work))), start_focal_px, well_posed)
+    V, G = np.asarray(v), np.asarray(g)
+    keep = np.ones(len(V), bool)
+    scale = 1.0
+    for _ in range(3):
+        scale = float(np.sum(V[keep] * G[keep]) / max(np.sum(G[keep] ** 2), 1e-18))
+        res = np.linalg.norm(V - scale * G, axis=1)
+        mad = 1.4826 * float(np.median(res[keep])) + 1e-12
+        keep = res < 3.0 * mad + 1e-9
+    n = int(keep.sum())
+    return FocalFit(start_focal_px * scale, n, scale, start_focal_px, n >= _MIN_FIT_PAIRS)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -232,36 +232,41 @@ def camera_motion(
             track = gyro_mod.integrate(telemetry.imu, bias=sync.bias)
         seconds["sync"] = time.perf_counter() - t0
     if track is not None and not user_focal and pairs.matches:
-        fit = gyro_mod.fit_focal(
-            pairs.matches,
-            gyro_mod.frame_rotations(track, sync, vision.trajectory.times),
-            (pairs.work.width, pairs.work.height),
-            pairs.work.width / camera.intrinsics.width,
-            camera.intrinsics.focal,
-        )
-        if fit.well_posed and abs(fit.focal_px / camera.intrinsics.focal - 1.0) > _REFIT_TOLERANCE:
-            before = camera
-            camera = camera.with_focal(
-                fit.focal_px,
+        before = camera
+        for attempt in range(2):  # vision angles are nearly, not exactly, proportional to 1/focal
+            step = gyro_mod.fit_focal(
+                [(i, j, p.Q) for i, j, p in pairs.pairs if p.ok],
+                gyro_mod.frame_rotations(track, sync, vision.trajectory.times),
+                camera.intrinsics.focal,
+            )
+            if attempt == 0:
+                fit = step
+            if not step.well_posed or abs(step.scale - 1.0) <= _REFIT_TOLERANCE:
+                break
+            previous = camera
+            camera = before.with_focal(
+                step.focal_px,
                 "gyro-fit",
-                f"fitted from the gyro on {fit.pairs} frame pairs (the {before.source} gave "
+                f"fitted from the gyro on {step.pairs} frame pairs (the {before.source} gave "
                 f"{before.intrinsics.focal:.1f} px: {before.detail})",
             )
             if len(pairs.times) <= keep:  # every pair's matches are kept: re-fit them (cheap)
-                pairs = refit(pairs, before.intrinsics, fit.focal_px)
-            elif chosen in ("vision", "fused"):  # a long clip: measure it again
+                pairs = refit(pairs, previous.intrinsics, step.focal_px)
+            elif chosen in ("vision", "fused") and attempt == 0:  # a long clip: measure it again
                 pairs = collect_pairs(video, camera.intrinsics, vopts, report("motion (refit)"))
             else:
                 pairs = None
-            if pairs is not None:
-                vision = solve_motion(pairs, camera.intrinsics, calibrate=vopts.calibrate)
-                sync = _sync(gyro_track, vision, chosen == "camera-orientation")
-                if chosen != "camera-orientation":
-                    track = gyro_mod.integrate(telemetry.imu, bias=sync.bias)
-        elif fit.well_posed:
-            camera = camera.with_focal(
-                camera.intrinsics.focal, camera.source, camera.detail + "; confirmed by the gyro"
-            )
+                break
+            vision = solve_motion(pairs, camera.intrinsics, calibrate=vopts.calibrate)
+            sync = _sync(gyro_track, vision, chosen == "camera-orientation")
+            if chosen != "camera-orientation":
+                track = gyro_mod.integrate(telemetry.imu, bias=sync.bias)
+        if fit is not None and fit.well_posed:
+            fit = replace(fit, focal_px=camera.intrinsics.focal)
+            if camera is before:
+                camera = camera.with_focal(
+                    camera.intrinsics.focal, camera.source, camera.detail + "; confirmed by the gyro"
+                )
     if track is not None and pairs is not None:
         comparison = gyro_mod.compare_rotations(
             vision.trajectory.R, gyro_mod.frame_rotations(track, sync, vision.trajectory.times), vision.confidence[1:]

@@ -6,7 +6,16 @@ from pathlib import Path
 
 import typer
 
-from egovid.cli.common import check_output, console, parse_ints, parse_size, progress_bar, staged_progress
+from egovid.cli.common import (
+    ALLOW_TRUNCATED,
+    all_or_nothing,
+    console,
+    parse_ints,
+    parse_size,
+    progress_bar,
+    staged_progress,
+)
+from egovid.cli.validate import CSV, HTML, JSON, PLOT, TUM, VIDEO_OUT, choice, input_file, number, outputs, video_input
 
 app = typer.Typer(
     help="First-person video: camera motion, viewing-experience scores, FPMI-preserving stabilisation.",
@@ -30,7 +39,15 @@ def source_option():
     return typer.Option("auto", "--source", help=SOURCE_HELP)
 
 
+def check_source(source: str) -> None:
+    """Refuse an unknown ``--source`` before any work."""
+    from egovid.motion.source import SOURCES
+
+    choice(source, "--source", SOURCES)
+
+
 @app.command("motion")
+@all_or_nothing
 def motion(
     video: Path = typer.Argument(..., help="Input video."),
     out: Path = typer.Option(
@@ -53,6 +70,7 @@ def motion(
     ),
     features: str = typer.Option("orb", help="orb | sift."),
     work_width: int = typer.Option(640, min=160, max=3840, help="Width of the downscaled copy used for features."),
+    allow_truncated: bool = ALLOW_TRUNCATED,
 ) -> None:
     """Estimate the camera rotation of every frame.
 
@@ -64,17 +82,23 @@ def motion(
     """
     import json
 
-    from egovid.cli.common import staged_progress
     from egovid.io.files import atomic_write_text
     from egovid.io.trajectory import write_motion_csv, write_tum
     from egovid.motion.estimate import MotionOptions
     from egovid.motion.source import camera_motion
 
-    json_out = json_out or out.with_suffix(".json")
-    tum = tum or out.with_suffix(".tum")
-    for p in (out, json_out, tum, plot):
-        if p is not None:
-            check_output(p)
+    video_input(video, allow_truncated=allow_truncated)
+    json_out = json_out or out.parent / (out.stem + ".json")
+    tum = tum or out.parent / (out.stem + ".tum")
+    outputs(
+        [video],
+        (out, CSV, "motion CSV"),
+        (json_out, JSON, "summary JSON"),
+        (tum, TUM, "TUM file"),
+        (plot, PLOT, "plot"),
+    )
+    choice(features, "--features", ("orb", "sift"))
+    check_source(source)
     opts = MotionOptions(lags=parse_ints(lags, "--lags"), features=features, work_width=work_width)
     with staged_progress() as cb:
         cm = camera_motion(video, source, focal=focal, hfov=hfov, options=opts, progress=cb)
@@ -120,6 +144,7 @@ def motion(
 
 
 @app.command("score")
+@all_or_nothing
 def score(
     video: Path = typer.Argument(None, help="Input video (omit when --motion is given)."),
     motion: Path = typer.Option(None, "--motion", help="Score this motion CSV (frame,time,yaw,pitch,roll) instead."),
@@ -138,6 +163,7 @@ def score(
     ),
     save_motion: Path = typer.Option(None, help="When scoring a video, also save its estimated motion CSV here."),
     source: str = source_option(),
+    allow_truncated: bool = ALLOW_TRUNCATED,
 ) -> None:
     """Score how watchable a first-person video is (thesis ch. 7–8).
 
@@ -154,7 +180,6 @@ def score(
     from egovid.io.camera import resolve_intrinsics
     from egovid.io.files import atomic_write_text
     from egovid.io.trajectory import read_motion_csv, write_motion_csv
-    from egovid.io.video import probe
     from egovid.perception.model import ViewingModel
     from egovid.perception.score import score_angles
 
@@ -164,9 +189,20 @@ def score(
             raise EgovidError(f"unknown method {m!r}", "choose ve, sve, ve2d or all")
     if (video is None) == (motion is None):
         raise EgovidError("give either a VIDEO or --motion CSV", "e.g. `egovid fpv score clip.mp4`")
-    for p in (json_out, plot, save_motion):
-        if p is not None:
-            check_output(p)
+    choice(sve_variant, "--sve-variant", ("coverage", "thesis"))
+    check_source(source)
+    number(fps, "--fps", lo=0, lo_open=True, hi=1000)
+    number(d_over_f, "--d-over-f", lo=0, lo_open=True, hi=1000)
+    number(mar, "--mar", lo=0, lo_open=True, hi=10, unit="degrees")
+    number(bias, "--bias", lo=0, hi=10, unit="degrees")
+    input_file(motion, "motion CSV")
+    info = video_input(video, allow_truncated=allow_truncated) if video is not None else None
+    outputs(
+        [video, motion],
+        (json_out, JSON, "JSON"),
+        (plot, PLOT, "plot"),
+        (save_motion if video else None, CSV, "motion CSV"),
+    )
     if motion is not None and "ve2d" in methods:
         if method != "all":
             raise EgovidError("2D-VE needs the video, not a motion CSV", "pass the VIDEO instead of --motion")
@@ -177,7 +213,6 @@ def score(
     if video is not None:
         from egovid.io.camera import resolve_camera
 
-        info = probe(video)
         camera = resolve_camera(video, focal, hfov)
         intr = camera.intrinsics
         rate = info.fps
@@ -251,6 +286,7 @@ def score(
 
 
 @app.command("stabilize")
+@all_or_nothing
 def stabilize_cmd(
     src: Path = typer.Argument(..., help="Input video."),
     out: Path = typer.Option(..., "-o", "--out", help="Output video (MP4/H.264; audio and timing kept)."),
@@ -269,6 +305,7 @@ def stabilize_cmd(
     ),
     crf: int = typer.Option(18, min=0, max=51, help="H.264 quality of the output (lower = better)."),
     source: str = source_option(),
+    allow_truncated: bool = ALLOW_TRUNCATED,
 ) -> None:
     """Stabilise a first-person video but keep its intentional motion (thesis ch. 9).
 
@@ -282,7 +319,6 @@ def stabilize_cmd(
     from egovid.errors import EgovidError
     from egovid.io.files import atomic_write_text
     from egovid.io.trajectory import Trajectory, read_motion_csv, write_motion_csv
-    from egovid.io.video import probe
     from egovid.stabilize.optimize import OptimizeOptions
     from egovid.stabilize.pipeline import stabilize
     from egovid.stabilize.render import BORDERS
@@ -293,13 +329,17 @@ def stabilize_cmd(
         raise EgovidError(f"unknown method {method!r}", "choose ve or sve")
     if not (0.0 <= strength <= 1.0):
         raise EgovidError(f"strength {strength} is outside [0, 1]", "use e.g. --strength 0.7")
-    check_output(out)
-    if out.resolve() == src.resolve():
-        raise EgovidError("the output would overwrite the input", "choose another --out")
-    for p in (report, json_out):
-        if p is not None:
-            check_output(p)
-    info = probe(src)
+    check_source(source)
+    info = video_input(src, allow_truncated=allow_truncated)
+    input_file(motion, "motion CSV")
+    pre = (save_motion.parent / (save_motion.name + s) for s in (".input.csv", ".output.csv")) if save_motion else ()
+    outputs(
+        [src, motion],
+        (out, VIDEO_OUT, "output video"),
+        (report, HTML, "report"),
+        (json_out, JSON, "JSON"),
+        *((p, CSV, "motion CSV") for p in pre),
+    )
     from egovid.io.camera import resolve_camera
 
     intr = resolve_camera(src, focal, hfov).intrinsics

@@ -33,9 +33,11 @@ def run(
     """Render the test scenes and their compression ladder, run every odometer on every video
     (finished cells are kept: re-running resumes), and score pose error, OITF and RITF."""
     from egovid.cli.common import parse_size
+    from egovid.cli.validate import output_folder
     from egovid.errors import EgovidError
     from egovid.voeval.runner import LEVELS, GridConfig, run_grid
 
+    output_folder(out, what="run folder")
     w, h = parse_size(size)
     lv = [x.strip() for x in levels.split(",") if x.strip()]
     bad = [x for x in lv if x not in LEVELS]

@@ -1,6 +1,8 @@
 """Streaming video input and output on PyAV (FFmpeg).
 
-* :func:`probe` opens a video, checks that it decodes, and describes it (:class:`VideoInfo`).
+* :func:`probe` opens a video, checks that it decodes and that it holds the frames its container
+  lists (a file cut short while copying or recording is reported with how many frames it really
+  has, unless the caller accepts it with ``allow_truncated``), and describes it (:class:`VideoInfo`).
 * :func:`iter_frames` decodes frame by frame (never the whole video), with the exact frame count,
   presentation times in seconds, and the container's rotation flag applied, so frames come out in
   display orientation (unlike ``cv2.VideoCapture``, egovid reports the flag and the camera
@@ -27,8 +29,10 @@ import cv2
 import numpy as np
 
 from egovid.errors import EgovidError
+from egovid.io.files import commit_temp, temp_sibling, track_temp, untrack_temp
 
 _FIX_VIDEO = "give a video file FFmpeg can decode (e.g. MP4/H.264, MKV, WebM)"
+_TRUNCATED_OK: dict[Path, int] = {}  # truncated videos a caller accepted -> frames they really have
 
 
 # FFmpeg's enum values (libavutil/pixfmt.h) by the names ffprobe prints.
@@ -136,6 +140,7 @@ class VideoInfo:
     timecode: str | None = None
     audio_streams: int = 0
     data_streams: tuple[str, ...] = ()
+    truncated: bool = False  # cut short; frame_count and duration are then what is really there
 
 
 @dataclass
@@ -158,11 +163,41 @@ def _open(path: str | os.PathLike) -> av.container.InputContainer:
     try:
         container = av.open(str(p), mode="r")
     except av.error.FFmpegError as exc:
+        if _is_mp4_without_index(p):
+            raise EgovidError(
+                f"{p} is an MP4/MOV file without its index (moov box): it was cut short while recording or copying",
+                "copy it again from the camera, or rebuild the index with a recovery tool such as untrunc",
+            ) from None
         raise EgovidError(f"{p} is not a readable video ({_ffmpeg_reason(exc)})", _FIX_VIDEO) from None
     if not container.streams.video:
         container.close()
         raise EgovidError(f"{p} has no video stream", _FIX_VIDEO)
     return container
+
+
+def _is_mp4_without_index(p: Path) -> bool:
+    """An ISO-BMFF file (ftyp box first) whose top-level boxes hold no ``moov``."""
+    try:
+        with open(p, "rb") as fh:
+            if fh.read(12)[4:8] != b"ftyp":
+                return False
+            fh.seek(0)
+            size = p.stat().st_size
+            pos = 0
+            while pos + 8 <= size:
+                fh.seek(pos)
+                head = fh.read(16)
+                n, kind = int.from_bytes(head[:4], "big"), head[4:8]
+                if kind == b"moov":
+                    return False
+                if n == 1 and len(head) == 16:
+                    n = int.from_bytes(head[8:16], "big")
+                if n < 8:
+                    break
+                pos += n
+            return True
+    except OSError:
+        return False
 
 
 def _ffmpeg_reason(exc: Exception) -> str:
@@ -203,10 +238,14 @@ def _rotate_i420(img: np.ndarray, rotation: int) -> np.ndarray:
     return out
 
 
-def probe(path: str | os.PathLike) -> VideoInfo:
-    """Open ``path``, decode its first frame and describe the video.
+def probe(path: str | os.PathLike, *, allow_truncated: bool = False) -> VideoInfo:
+    """Open ``path``, decode its first frame, check its end, and describe the video.
 
-    Raises :class:`EgovidError` for a missing, empty, corrupt or frameless file.
+    Raises :class:`EgovidError` for a missing, empty, corrupt or frameless file, and for a
+    truncated one (its last frames are missing although the container lists them) unless
+    ``allow_truncated``: then ``frame_count`` is the number of frames really there, and
+    :func:`iter_frames` and :func:`count_frames` stop quietly after them for the rest of the
+    process.
     """
     container = _open(path)
     try:
@@ -234,6 +273,18 @@ def probe(path: str | os.PathLike) -> VideoInfo:
             frames = round(duration * fps)
         if fps <= 0:
             fps = 30.0
+        truncated = _truncated_end(container, stream, Path(path))
+        if truncated is not None:
+            real, real_s = truncated
+            claimed = f"{frames} frames, {duration:.1f} s" if frames else f"{duration:.1f} s"
+            if not allow_truncated and Path(path).resolve() not in _TRUNCATED_OK:
+                raise EgovidError(
+                    f"{path} is truncated: it holds {real} frames ({real_s:.1f} s) of the {claimed} "
+                    "its container lists",
+                    f"copy the file again, or pass --allow-truncated to process the {real} frames there are",
+                )
+            _TRUNCATED_OK[Path(path).resolve()] = real
+            frames, duration = real, real_s
         return VideoInfo(
             path=Path(path),
             width=w,
@@ -246,6 +297,7 @@ def probe(path: str | os.PathLike) -> VideoInfo:
             has_audio=bool(container.streams.audio),
             creation_time=container.metadata.get("creation_time") or stream.metadata.get("creation_time"),
             **_stream_facts(container, stream, first),
+            truncated=truncated is not None,
         )
     finally:
         container.close()
@@ -270,6 +322,105 @@ def _stream_facts(container, stream, first: av.VideoFrame) -> dict:
         "audio_streams": len(container.streams.audio),
         "data_streams": data,
     }
+
+
+def _claimed_duration(container: av.container.InputContainer, stream: av.video.VideoStream) -> float | None:
+    """Seconds of video the container says the stream has (None when it does not say)."""
+    if stream.duration is not None and stream.time_base is not None and stream.duration > 0:
+        return float(stream.duration * stream.time_base)
+    tag = stream.metadata.get("DURATION") or stream.metadata.get("duration")
+    if tag:
+        try:
+            h, m, sec = tag.split(":")
+            return int(h) * 3600 + int(m) * 60 + float(sec)
+        except ValueError:
+            pass
+    if container.duration is not None and len(container.streams) == 1:
+        return container.duration / av.time_base
+    return None
+
+
+def _packet_cut(packet: av.Packet, size: int) -> bool:
+    """True for a packet whose data the file does not hold in full (the file ends inside it)."""
+    return bool(packet.is_corrupt) or (packet.pos is not None and packet.pos >= 0 and packet.pos + packet.size > size)
+
+
+def _truncated_end(
+    container: av.container.InputContainer, stream: av.video.VideoStream, path: Path
+) -> tuple[int, float] | None:
+    """Check the end of the video stream against what the container claims.
+
+    Demuxes (no decoding) from about a second before the claimed end. Returns None when the end
+    is there, else ``(frames, seconds)`` really in the file, counted by demuxing it all (only
+    then). A cut of less than half a second (or 2 %) is not flagged here; decoding reports it.
+    """
+    claimed = _claimed_duration(container, stream)
+    size = path.stat().st_size
+    tb = stream.time_base
+    start = stream.start_time or 0
+    fps = float(stream.average_rate or stream.guessed_rate or 30)
+    last_end = None
+    cut = False
+    try:
+        if claimed is not None and claimed > 1.0:
+            container.seek(start + int((claimed - 1.0) / tb), stream=stream, backward=True)
+        for packet in container.demux(stream):
+            if not packet.size or packet.pts is None:
+                continue
+            if _packet_cut(packet, size):
+                cut = True
+                break
+            end = float((packet.pts - start + (packet.duration or 0)) * tb)
+            last_end = end if last_end is None else max(last_end, end)
+    except av.error.FFmpegError:
+        cut = True
+    if not cut:
+        if claimed is None or last_end is None:
+            return None
+        if last_end >= claimed - max(0.5, 0.02 * claimed, 2.5 / fps):
+            return None
+    frames, seconds = _complete_packets(path)
+    return frames, seconds
+
+
+def _complete_packets(path: Path) -> tuple[int, float]:
+    """Frames (packets with all their data) at the start of a cut file, and their seconds."""
+    size = path.stat().st_size
+    n = 0
+    last = 0.0
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        start = stream.start_time or 0
+        try:
+            for packet in container.demux(stream):
+                if not packet.size:
+                    continue
+                if _packet_cut(packet, size):
+                    break
+                n += 1
+                if packet.pts is not None:
+                    last = max(last, float((packet.pts - start + (packet.duration or 0)) * stream.time_base))
+        except av.error.FFmpegError:
+            pass
+    return n, last
+
+
+def _decoded(container: av.container.InputContainer, stream: av.video.VideoStream, path: str | os.PathLike):
+    """Decode ``stream``; for a truncated file the caller accepted, stop at the cut and flush."""
+    accepted = Path(path).resolve() in _TRUNCATED_OK
+    if not accepted:
+        yield from container.decode(stream)
+        return
+    size = Path(path).stat().st_size
+    try:
+        for packet in container.demux(stream):
+            if packet.size and _packet_cut(packet, size):
+                break
+            yield from packet.decode()
+    except av.error.FFmpegError:
+        pass
+    with contextlib.suppress(av.error.FFmpegError):
+        yield from stream.decode(None)
 
 
 def iter_frames(
@@ -307,7 +458,7 @@ def iter_frames(
         t0: float | None = None
         index = 0
         try:
-            for frame in container.decode(stream):
+            for frame in _decoded(container, stream, path):
                 rotation = _rotation_of(frame)
                 if scale is not None and scale != 1.0:
                     sw = max(2, round(frame.width * scale))
@@ -349,7 +500,7 @@ def count_frames(path: str | os.PathLike) -> int:
     container = _open(path)
     try:
         n = 0
-        for _ in container.decode(container.streams.video[0]):
+        for _ in _decoded(container, container.streams.video[0], path):
             n += 1
         return n
     except av.error.FFmpegError as exc:
@@ -455,7 +606,7 @@ class VideoWriter:
             raise EgovidError(f"output folder {self.path.parent} does not exist", "create it first")
         if fps <= 0 or not np.isfinite(fps):
             raise EgovidError(f"frame rate {fps} is not positive", "give a frame rate such as 30")
-        src_info = probe(keep_from) if keep_from is not None else None
+        src_info = probe(keep_from, allow_truncated=True) if keep_from is not None else None
         if src_info is not None:
             colour = src_info.colour if colour is None else colour
             rotation = src_info.rotation if rotation is None else rotation
@@ -468,7 +619,7 @@ class VideoWriter:
         self.width, self.height = int(width), int(height)
         coded_w, coded_h = (self.height, self.width) if self.rotation in (90, 270) else (self.width, self.height)
         self.fps = float(fps)
-        self._tmp = self.path.with_name(f".{self.path.stem}.part-{os.getpid()}{self.path.suffix}")
+        self._tmp = track_temp(temp_sibling(self.path))
         mov = self.path.suffix.lower() in (".mp4", ".mov", ".m4v")
         # MP4/MOV keep only standard metadata keys unless told to write the others (e.g. firmware).
         muxer_opts = {"movflags": "use_metadata_tags"} if keep_from is not None and mov else {}
@@ -613,8 +764,14 @@ class VideoWriter:
         self._closed = True
         if self._count == 0:
             self._tmp.unlink(missing_ok=True)
+            untrack_temp(self._tmp)
             raise EgovidError("no frames were written", "the input produced no frames")
-        os.replace(self._tmp, self.path)
+        try:
+            commit_temp(self._tmp, self.path)
+        except BaseException:
+            self._tmp.unlink(missing_ok=True)
+            untrack_temp(self._tmp)
+            raise
         return self.path
 
     def abort(self) -> None:
@@ -628,6 +785,7 @@ class VideoWriter:
         with contextlib.suppress(Exception):
             self._container.close()
         self._tmp.unlink(missing_ok=True)
+        untrack_temp(self._tmp)
 
     def __enter__(self) -> VideoWriter:
         return self

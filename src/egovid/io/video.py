@@ -445,8 +445,11 @@ def iter_frames(
     max_frames:
         Stop after this many frames.
 
-    Frames come in display orientation; ``time`` is the presentation time in seconds from the
-    first frame. Raises :class:`EgovidError` if the video is unreadable or stops decoding midway.
+    Frames come in display orientation and in presentation order (a small buffer reorders frames
+    a decoder hands out of order); ``time`` is the presentation time in seconds from the first
+    frame, from the timestamps (so variable frame rate is kept), made strictly increasing (a
+    repeated or backward timestamp becomes the previous one plus a nominal frame interval).
+    Raises :class:`EgovidError` if the video is unreadable or stops decoding midway.
     """
     if scale is not None and not (0.0 < scale <= 1.0):
         raise EgovidError(f"scale {scale} must be in (0, 1]", "use e.g. 0.5 for half size")
@@ -454,35 +457,123 @@ def iter_frames(
     try:
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"
-        fmt = "yuv420p" if i420 else ("gray" if gray else "bgr24")
-        t0: float | None = None
-        index = 0
+        rate = float(stream.average_rate or stream.guessed_rate or 30)
+        nominal = 1.0 / rate if rate > 0 else 1.0 / 30
+        tb = float(stream.time_base) if stream.time_base else None
+        reorder = _Reorder(_REORDER_DEPTH)
+        state = {"t0": None, "prev": None, "index": 0}
+
+        def emit(item) -> Frame:
+            t, img = item
+            if state["t0"] is None:
+                state["t0"] = t
+            t -= state["t0"]
+            if state["prev"] is not None and t <= state["prev"]:
+                t = state["prev"] + nominal
+            state["prev"] = t
+            frame = Frame(state["index"], t, img)
+            state["index"] += 1
+            return frame
+
+        decoded = 0
         try:
             for frame in _decoded(container, stream, path):
                 rotation = _rotation_of(frame)
                 if scale is not None and scale != 1.0:
                     sw = max(2, round(frame.width * scale))
                     sh = max(2, round(frame.height * scale))
-                    img = frame.to_ndarray(format=fmt, width=sw, height=sh, interpolation="AREA")
+                    img = frame.to_ndarray(format=_pixel_format(gray, i420), width=sw, height=sh, interpolation="AREA")
                 else:
-                    img = frame.to_ndarray(format=fmt)
+                    img = frame.to_ndarray(format=_pixel_format(gray, i420))
                 img = _rotate_i420(img, rotation) if i420 else _apply_rotation(img, rotation)
-                t = float(frame.time) if frame.time is not None else index / float(stream.average_rate or 30)
-                if t0 is None:
-                    t0 = t
-                yield Frame(index, t - t0, img)
-                index += 1
-                if max_frames is not None and index >= max_frames:
-                    return
+                pts = frame.pts if frame.pts is not None else frame.dts
+                t = float(pts * tb) if (pts is not None and tb) else decoded * nominal
+                decoded += 1
+                for item in reorder.push(t, img):
+                    yield emit(item)
+                    if max_frames is not None and state["index"] >= max_frames:
+                        return
         except av.error.FFmpegError as exc:
             raise EgovidError(
-                f"{path} stops decoding at frame {index} ({_ffmpeg_reason(exc)})",
+                f"{path} stops decoding at frame {decoded} ({_ffmpeg_reason(exc)})",
                 "the file is corrupt or truncated; re-export or repair it",
             ) from None
-        if index == 0:
+        for item in reorder.flush():
+            yield emit(item)
+            if max_frames is not None and state["index"] >= max_frames:
+                return
+        if state["index"] == 0:
             raise EgovidError(f"video {path} has no frames", _FIX_VIDEO)
     finally:
         container.close()
+
+
+#: Frames held back to put a decoder's output into presentation order.
+_REORDER_DEPTH = 4
+
+
+def _pixel_format(gray: bool, i420: bool) -> str:
+    """PyAV pixel format of :func:`iter_frames`' options."""
+    return "yuv420p" if i420 else ("gray" if gray else "bgr24")
+
+
+class _Reorder:
+    """A small min-heap on presentation time: frames leave in time order, ``depth`` behind."""
+
+    def __init__(self, depth: int) -> None:
+        self.depth = depth
+        self.heap: list = []
+        self.seq = 0
+
+    def push(self, t: float, img: np.ndarray):
+        import heapq
+
+        heapq.heappush(self.heap, (t, self.seq, img))
+        self.seq += 1
+        while len(self.heap) > self.depth:
+            t, _, img = heapq.heappop(self.heap)
+            yield t, img
+
+    def flush(self):
+        import heapq
+
+        while self.heap:
+            t, _, img = heapq.heappop(self.heap)
+            yield t, img
+
+
+def frame_times(path: str | os.PathLike) -> np.ndarray:
+    """Presentation times (N,) in seconds of every frame, from the first, without decoding
+    (demuxing only; sorted, so B-frames are in presentation order; repeated or backward times
+    follow :func:`iter_frames`' rule)."""
+    container = _open(path)
+    try:
+        stream = container.streams.video[0]
+        rate = float(stream.average_rate or stream.guessed_rate or 30)
+        nominal = 1.0 / rate if rate > 0 else 1.0 / 30
+        tb = float(stream.time_base) if stream.time_base else nominal
+        pts = []
+        cut = Path(path).resolve() in _TRUNCATED_OK  # a truncated file the caller accepted
+        size = Path(path).stat().st_size
+        for packet in container.demux(stream):
+            if packet.size == 0:
+                continue
+            if cut and _packet_cut(packet, size):
+                break
+            p = packet.pts if packet.pts is not None else packet.dts
+            pts.append(len(pts) * nominal / tb if p is None else p)
+    except av.error.FFmpegError as exc:
+        raise EgovidError(f"{path} cannot be read ({_ffmpeg_reason(exc)})", _FIX_VIDEO) from None
+    finally:
+        container.close()
+    t = np.sort(np.asarray(pts, float)) * tb
+    if len(t) == 0:
+        raise EgovidError(f"video {path} has no frames", _FIX_VIDEO)
+    t -= t[0]
+    for k in range(1, len(t)):
+        if t[k] <= t[k - 1]:
+            t[k] = t[k - 1] + nominal
+    return t
 
 
 def read_frames(path: str | os.PathLike, **kwargs) -> tuple[np.ndarray, np.ndarray]:

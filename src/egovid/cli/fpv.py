@@ -289,15 +289,27 @@ def score(
 @all_or_nothing
 def stabilize_cmd(
     src: Path = typer.Argument(..., help="Input video."),
-    out: Path = typer.Option(..., "-o", "--out", help="Output video (MP4/H.264; audio and timing kept)."),
+    out: Path = typer.Option(
+        ..., "-o", "--out", help="Output video (MP4/H.264; audio, telemetry, timing and colour kept)."
+    ),
     strength: float = typer.Option(1.0, help="0 = untouched … 1 = the optimum of eq. 9.4 (default)."),
-    borders: str = typer.Option("crop", help="crop (fixed zoom, no borders) | black | fill (temporal mosaic)."),
+    borders: str = typer.Option(
+        "crop", help="crop (a zoom that follows the need, no borders) | black | fill (temporal mosaic)."
+    ),
+    max_zoom: float = typer.Option(
+        1.10, "--max-zoom", help="Largest zoom the crop may use (1.10 = 10 %); the path bends to fit it."
+    ),
     keep_roll: bool = typer.Option(False, "--keep-roll", help="Keep intentional roll instead of levelling it."),
     method: str = typer.Option("ve", help="Stability measure of the objective: ve | sve."),
-    report: Path = typer.Option(None, help="Write an HTML report (plots, VE, FPMI, ITF) here."),
-    json_out: Path = typer.Option(None, "--json", help="Write the measurements as JSON."),
+    measure: bool = typer.Option(
+        True, "--measure/--no-measure", help="Decode the output and measure it (VE, SVE, FPMI, 2D-VE, ITF, jitter)."
+    ),
+    report: Path = typer.Option(None, help="Write an HTML report (planned vs measured, plots, thumbnails) here."),
+    json_out: Path = typer.Option(None, "--json", help="Write the measurements as JSON (deterministic: no timings)."),
     motion: Path = typer.Option(None, "--motion", help="Reuse a motion CSV from `egovid fpv motion` for this video."),
-    save_motion: Path = typer.Option(None, help="Save the estimated (input) and planned (output) motion CSVs: PREFIX."),
+    save_motion: Path = typer.Option(
+        None, help="Save the estimated (input) and rendered (output) motion CSVs: PREFIX."
+    ),
     focal: float = typer.Option(None, help=FOCAL_HELP),
     hfov: float = typer.Option(None, help=HFOV_HELP),
     anchor_threshold: float = typer.Option(
@@ -312,7 +324,9 @@ def stabilize_cmd(
     Looking around and the head bob of running stay; shake, jitter and roll go. The camera path
     is rebuilt from its motion anchors (local extremes), whose amplitudes are reduced just until
     the video becomes comfortable to watch while the first-person feeling remains (maximising VE
-    of the new motion minus VE of its zigzag), then eased between anchors.
+    of the new motion minus VE of its zigzag), then eased between anchors. That plan is then bent
+    into what a zoom of at most --max-zoom can cover, with the zoom itself changing smoothly over
+    time. Unless --no-measure, the output is decoded and measured again, next to the plan.
     """
     import json
 
@@ -329,6 +343,7 @@ def stabilize_cmd(
         raise EgovidError(f"unknown method {method!r}", "choose ve or sve")
     if not (0.0 <= strength <= 1.0):
         raise EgovidError(f"strength {strength} is outside [0, 1]", "use e.g. --strength 0.7")
+    number(max_zoom, "--max-zoom", lo=1.0, hi=4.0)
     check_source(source)
     info = video_input(src, allow_truncated=allow_truncated)
     input_file(motion, "motion CSV")
@@ -365,25 +380,43 @@ def stabilize_cmd(
             motion=traj,
             strength=strength,
             borders=borders,
+            max_zoom=max_zoom,
             keep_roll=keep_roll,
             method=method,
             opts=OptimizeOptions(anchor_threshold=anchor_threshold, method=method),
             crf=crf,
+            measure=measure,
             progress=cb,
         )
     s = res.summary()
+    pb, pa = s["planned"]["before"], s["planned"]["after"]
     console.print(
-        f"VE {s['ve_before']:.3f} → {s['ve_after']:.3f}   masked ITF {s['itf_before_db']:.2f} → "
-        f"{s['itf_after_db']:.2f} dB   first-person motion kept {100 * s['fpmi_retention']:.1f} %   "
-        f"crop {s['crop_factor']:.3f}   black {100 * s['black_share']:.2f} %   {s['fps_end_to_end']:.1f} fps"
+        f"planned   VE {pb['ve']:.3f} → {pa['ve']:.3f}   first-person motion kept "
+        f"{100 * s['fpmi_retention_planned']:.1f} %   zoom {s['zoom']['mean']:.3f} (max {s['zoom']['max']:.3f})"
+        f"   black {100 * s['black_share']:.2f} %"
     )
+    if "measured" in s:
+        mb, ma = s["measured"]["before"], s["measured"]["after"]
+        console.print(
+            f"measured  VE {mb['ve']:.3f} → {ma['ve']:.3f}   2D-VE {mb['ve2d']:.3f} → {ma['ve2d']:.3f}   "
+            f"ITF {mb['itf_db']:.2f} → {ma['itf_db']:.2f} dB   "
+            f"jitter {mb['jitter_px']:.3f} → {ma['jitter_px']:.3f} px   "
+            f"first-person motion kept {100 * s['fpmi_retention_measured']:.1f} %"
+        )
+    secs = res.seconds
+    console.print(
+        f"{len(res.times) / max(secs['total'] - secs['measure'], 1e-9):.1f} fps stabilising"
+        + (f", {secs['measure']:.1f} s measuring" if measure else "")
+    )
+    for note in s["notes"]:
+        console.print(f"note    {note}")
     console.print(f"video   {out}")
     if save_motion is not None:
         write_motion_csv(
             save_motion.with_name(save_motion.name + ".input.csv"), Trajectory.from_euler(res.times, res.original)
         )
         write_motion_csv(
-            save_motion.with_name(save_motion.name + ".output.csv"), Trajectory.from_euler(res.times, res.edited)
+            save_motion.with_name(save_motion.name + ".output.csv"), Trajectory.from_euler(res.times, res.path)
         )
     if json_out is not None:
         atomic_write_text(json_out, json.dumps(s, indent=1, default=float))
@@ -391,5 +424,5 @@ def stabilize_cmd(
     if report is not None:
         from egovid.stabilize.report import write_report
 
-        write_report(report, res, str(src), intr.hfov_deg, intr.vfov_deg, info.fps)
+        write_report(report, res, str(src), intr, info.fps)
         console.print(f"report  {report}")

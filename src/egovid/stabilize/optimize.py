@@ -36,9 +36,8 @@ from egovid.stabilize.fpm import (
     AnchorGeometry,
     anchor_geometry,
     ease,
-    find_anchors,
+    motion_anchors,
     motion_trend,
-    noise_level,
     pure_fpm,
     reduce_anchors,
 )
@@ -110,9 +109,7 @@ class AxisModel:
         self.opts = opts
         self.lut = lut or EasingLUT.default()
         self.context = np.zeros((self.n, 3)) if context is None else np.array(context, dtype=float)
-        # Jitter must not create anchors: the threshold is at least 3x the measured jitter.
-        self.threshold = max(opts.anchor_threshold, 3.0 * noise_level(self.theta))
-        self.anchors = find_anchors(self.theta, self.threshold)
+        self.anchors = motion_anchors(self.theta, opts.anchor_threshold)
         trend = motion_trend(self.theta, self.anchors)[self.anchors]
         self.geom: AnchorGeometry = anchor_geometry(self.anchors, self.theta[self.anchors], trend)
         # FPMR weights (eq. 9.5-9.6): motions between consecutive anchors larger than the view.

@@ -191,7 +191,7 @@ class Catalogue(ABC):
 
     @abstractmethod
     def blob_names(self) -> set[str]:
-        """Names of every blob a segment refers to."""
+        """Names of every blob the catalogue refers to (segments, and drives' audio/telemetry)."""
 
     @abstractmethod
     def close(self) -> None: ...
@@ -427,7 +427,10 @@ class _SqlCatalogue(Catalogue):
         return self._segment(row)
 
     def blob_names(self) -> set[str]:
-        return {r[0] for r in self._q("SELECT DISTINCT blob FROM segments")}
+        names = {r[0] for r in self._q("SELECT DISTINCT blob FROM segments")}
+        if self.get_meta("fleet_schema") is not None:  # drives' audio and telemetry (fleetstore.py)
+            names |= {r[0] for r in self._q("SELECT streams_blob FROM drive_meta WHERE streams_blob IS NOT NULL")}
+        return names
 
 
 class SqliteCatalogue(_SqlCatalogue):

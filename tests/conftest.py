@@ -155,7 +155,9 @@ def dask_scheduler(tmp_path_factory):
     base = tmp_path_factory.mktemp("dask")
     sched_file = base / "scheduler.json"
     dask = str(Path(sys.executable).parent / "dask")
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parent)}
+    # the tests' folder (for task functions) ahead of any PYTHONPATH (the code under test)
+    paths = [str(Path(__file__).parent), os.environ.get("PYTHONPATH")]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, paths))}
     local = ["--host", "127.0.0.1", "--no-dashboard"]
     procs = [_spawn([dask, "scheduler", *local, "--port", "0", "--scheduler-file", str(sched_file)],
                     base / "scheduler.log", env)]

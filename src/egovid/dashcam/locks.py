@@ -63,7 +63,8 @@ class AreaSession(ABC):
     """Area locks held by one ingest; grows with :meth:`acquire`, freed by :meth:`release`."""
 
     def __init__(self, on_wait: Callable[[str], None] | None = None) -> None:
-        self.held: list[str] = []
+        self.held: list[str] = []  # lock names, in the order taken (sorted)
+        self.keys: set[str] = set()  # the area keys they stand for
         self.on_wait = on_wait
 
     def _name(self, key: str) -> str:
@@ -72,7 +73,9 @@ class AreaSession(ABC):
 
     def acquire(self, keys: Iterable[str]) -> None:
         """Hold ``keys`` too (blocking until they are free)."""
+        keys = set(keys)
         want = sorted({self._name(k) for k in keys} - set(self.held))
+        self.keys |= keys
         if not want:
             return
         if self.held and want[0] < self.held[-1]:  # out of order: start again in order
@@ -102,6 +105,7 @@ class AreaSession(ABC):
 
     def close(self) -> None:
         self.release()
+        self.keys = set()
 
 
 class ArchiveLocks(ABC):

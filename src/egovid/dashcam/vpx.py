@@ -230,11 +230,13 @@ def pad_i420(frame: np.ndarray, width: int, height: int) -> np.ndarray:
     w = frame.shape[1]
     if (w, h) == (width, height):
         return np.ascontiguousarray(frame)
-    y, u, v = split_i420(frame, w, h)
-    y = np.pad(y, ((0, height - h), (0, width - w)), mode="edge")
-    u = np.pad(u, ((0, height // 2 - h // 2), (0, width // 2 - w // 2)), mode="edge")
-    v = np.pad(v, ((0, height // 2 - h // 2), (0, width // 2 - w // 2)), mode="edge")
-    return join_i420(y, u, v)
+    import cv2
+
+    out = np.empty((height * 3 // 2, width), np.uint8)
+    dst = split_i420(out, width, height)
+    for src, d in zip(split_i420(frame, w, h), dst, strict=True):
+        cv2.copyMakeBorder(src, 0, d.shape[0] - src.shape[0], 0, d.shape[1] - src.shape[1], cv2.BORDER_REPLICATE, d)
+    return out
 
 
 def crop_i420(frame: np.ndarray, width: int, height: int) -> np.ndarray:

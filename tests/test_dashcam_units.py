@@ -362,7 +362,7 @@ def test_baselines_fetch_the_older_drive_forward_in_coding_order():
     """Coding order asks for an anchor's baseline before the frames behind it; the older drive must
     still be read forward (a jump in its frame numbers — it stood still — would otherwise restart
     its decoding from the keyframe)."""
-    from egovid.dashcam.archive import baseline_builder
+    from egovid.dashcam.extract import baseline_builder
 
     class Recorder:
         def __init__(self):

@@ -94,3 +94,21 @@ def test_local_pool_of_two_processes(tmp_path):
     cfg = EngineConfig(workers=2, retries=1)
     outcomes = list(run_tasks(fail_once, [str(tmp_path / "a"), str(tmp_path / "b")], config=cfg))
     assert all(o.ok and o.value == "ok" for o in outcomes)
+
+
+def stamp(path: str) -> tuple[float, float]:
+    """Sleep a little and return (start, end) wall-clock times."""
+    import time
+
+    t0 = time.time()
+    time.sleep(0.3)
+    Path(path).write_text("done")
+    return t0, time.time()
+
+
+def test_a_task_starts_after_the_tasks_it_waits_for(tmp_path):
+    items = [str(tmp_path / k) for k in "abc"]
+    after = {"c": ["a", "b"], "b": ["a"]}
+    for cfg in (EngineConfig(workers=1), EngineConfig(workers=2)):
+        out = {o.key: o.value for o in run_tasks(stamp, items, config=cfg, keys=["c", "b", "a"], after=after)}
+        assert out["b"][0] >= out["a"][1] and out["c"][0] >= out["b"][1], out

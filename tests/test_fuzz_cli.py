@@ -68,7 +68,7 @@ def ws(tmp_path_factory) -> Path:
     (d / "notime.gpx").write_text(_gpx([("48.1", "11.5", "")]).replace("<time></time>", ""))
     (d / "junk.nmea").write_text("$GPRMC,garbage*00\n" * 5)
     (d / "bad.gps.csv").write_text("time,lat,lon\n2026-05-04T08:00:00Z,abc,11\n")
-    from egovid.dashcam.archive import Archive
+    from egovid.dashcam.store import Archive
 
     Archive.create(d / "arc").catalogue.close()
     (d / "notarc").mkdir()

@@ -23,7 +23,7 @@ import contextlib
 import itertools
 import os
 import uuid
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -136,6 +136,7 @@ def run_tasks(
     keys: Sequence[str] | None = None,
     name: str = "task",
     client: Any = None,
+    after: Mapping[str, Sequence[str]] | None = None,
 ) -> Iterator[TaskOutcome]:
     """Run ``fn(item)`` for every item; yield a :class:`TaskOutcome` per task as tasks finish.
 
@@ -144,14 +145,22 @@ def run_tasks(
     cluster are ``NAME-KEY-<random>`` so that two runs never collide. ``client`` reuses an open
     client (from :func:`open_client`); otherwise one is opened for this call. A task that raises is
     retried ``config.retries`` times, then reported with its ``error``; other tasks carry on.
+    ``after`` maps a key to the keys whose tasks must have finished (well or not) before it starts:
+    a task is handed to the cluster only then, so waiting never holds a worker.
     """
     items = list(items)
     keys = [str(k) for k in (keys if keys is not None else range(len(items)))]
     if len(keys) != len(items):
         raise ValueError("one key per item")
+    waits = {k: {str(d) for d in (after or {}).get(k, ())} & set(keys) for k in keys}
     if config.in_process and client is None:
-        for key, item in zip(keys, items, strict=True):
+        done: set[str] = set()
+        todo = list(zip(keys, items, strict=True))
+        while todo:
+            i = next((i for i, (k, _) in enumerate(todo) if waits[k] <= done), 0)  # 0: a cycle, break it
+            key, item = todo.pop(i)
             yield _run_here(fn, key, item, config.retries)
+            done.add(key)
         return
     with contextlib.ExitStack() as stack:
         if client is None:
@@ -159,19 +168,38 @@ def run_tasks(
         from distributed import as_completed
 
         token = uuid.uuid4().hex[:8]
-        futures = {}
-        for key, item in zip(keys, items, strict=True):
-            fut = client.submit(fn, item, key=f"{name}-{key}-{token}", pure=False, retries=config.retries)
-            futures[fut] = (key, item)
+        futures: dict = {}
+        pending = dict(zip(keys, items, strict=True))
+        finished: set[str] = set()
+
+        def submit_ready() -> list:
+            ready = [k for k in pending if waits[k] <= finished]
+            if not ready and pending and not futures_running():
+                ready = [next(iter(pending))]  # a cycle in ``after``: break it
+            out = []
+            for key in ready:
+                item = pending.pop(key)
+                fut = client.submit(fn, item, key=f"{name}-{key}-{token}", pure=False, retries=config.retries)
+                futures[fut] = (key, item)
+                out.append(fut)
+            return out
+
+        def futures_running() -> bool:
+            return any(not f.done() for f in futures)
+
+        queue = as_completed(submit_ready())
         try:
-            for fut in as_completed(list(futures)):
+            for fut in queue:
                 key, item = futures[fut]
                 try:
                     yield TaskOutcome(key, item, value=fut.result())
                 except Exception as exc:  # the task failed for good, or its worker kept dying
                     yield TaskOutcome(key, item, error=exc)
                 finally:
+                    finished.add(key)
                     fut.release()
+                    for new in submit_ready():
+                        queue.add(new)
         finally:
             for fut in futures:
                 if not fut.done():

@@ -113,7 +113,10 @@ def demo(
 def _dashcam(folder: Path, quick: bool) -> None:
     import shutil
 
-    from egovid.dashcam.archive import Archive, IngestOptions
+    from egovid.dashcam.extract import extract_video
+    from egovid.dashcam.ingest import IngestOptions, ingest
+    from egovid.dashcam.report import archive_report
+    from egovid.dashcam.store import Archive
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -133,13 +136,13 @@ def _dashcam(folder: Path, quick: bool) -> None:
     shutil.rmtree(folder / "archive", ignore_errors=True)
     ar = Archive.create(folder / "archive")
     for video, gps, _ in (monday, tuesday):
-        rep = ar.ingest(video, gps, IngestOptions())
+        rep = ingest(ar, video, gps, IngestOptions(measure_savings=True))
         for p in rep.pieces:
             saving = f", {100 * p.saving:.1f} % smaller than standalone VP9" if p.saving is not None else ""
             console.print(
                 f"{rep.name}: {p.mode}{' against ' + p.ref_drive if p.ref_drive else ''}, "
                 f"{p.bytes / 1024:.0f} KiB{saving}"
             )
-    ar.extract("tuesday", folder / "tuesday-extracted.mkv")
-    (folder / "report.json").write_text(json.dumps(ar.report(), indent=1, default=str))
+    extract_video(ar, ar.drive_or_fail("tuesday"), folder / "tuesday-extracted.mkv")
+    (folder / "report.json").write_text(json.dumps(archive_report(ar), indent=1, default=str))
     console.print(f"archive {folder / 'archive'}; tuesday extracted bit-exactly to {folder / 'tuesday-extracted.mkv'}")

@@ -30,9 +30,11 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from egovid.motion.features import FeatureExtractor, FrameFeatures
@@ -50,26 +52,101 @@ def small_gray(i420: np.ndarray, width: int, height: int, work_width: int = WORK
     return cv2.resize(y, (work_width, max(2, round(height * s))), interpolation=cv2.INTER_AREA)
 
 
-class OrbScorer:
-    """ORB features per frame and the RANSAC inlier count of a frame pair (cached)."""
+@numba.njit(nogil=True, cache=True)
+def _popcount(x):
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return (x * np.uint64(0x0101010101010101)) >> np.uint64(56)
 
-    def __init__(self, n_features: int = 500) -> None:
+
+@numba.njit(nogil=True, cache=True)
+def _cross_check(a, b):
+    """Mutual nearest neighbours of (n, w) and (m, w) uint64 bit strings; row by row, so the inner
+    loops run over b and vectorise."""
+    n, m, w = a.shape[0], b.shape[0], a.shape[1]
+    bt = b.T.copy()
+    row = np.empty(m, np.int32)
+    best_b = np.full(m, 1 << 30, np.int32)
+    arg_b = np.full(m, -1, np.int64)
+    arg_a = np.empty(n, np.int64)
+    for i in range(n):
+        row[:] = 0
+        for t in range(w):
+            at = a[i, t]
+            for j in range(m):
+                row[j] += np.int32(_popcount(at ^ bt[t, j]))
+        arg_a[i] = np.argmin(row)
+        for j in range(m):
+            better = row[j] < best_b[j]
+            best_b[j] = row[j] if better else best_b[j]
+            arg_b[j] = i if better else arg_b[j]
+    keep = np.zeros(n, np.bool_)
+    for i in range(n):
+        keep[i] = arg_b[arg_a[i]] == i
+    qi = np.flatnonzero(keep)
+    return qi, arg_a[qi]
+
+
+def cross_check_matches(desc_a: np.ndarray, desc_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mutual nearest neighbours of two sets of binary descriptors ((N, 32) uint8, Hamming
+    distance): (indices into a, indices into b), in the order of a — what OpenCV's
+    ``BFMatcher(NORM_HAMMING, crossCheck=True)`` returns (ties to the lowest index), about 10 times
+    faster than the pip build of OpenCV, which counts bits by table look-up."""
+    if len(desc_a) == 0 or len(desc_b) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    if desc_a.shape[1] % 8:
+        pad = 8 - desc_a.shape[1] % 8
+        desc_a, desc_b = (np.pad(d, ((0, 0), (0, pad))) for d in (desc_a, desc_b))
+    a = np.ascontiguousarray(desc_a).view(np.uint64)
+    b = np.ascontiguousarray(desc_b).view(np.uint64)
+    return _cross_check(a, b)
+
+
+class MatchCache:
+    """:func:`cross_check_matches` remembering its last ``size`` results, for an aligner whose
+    search and refinement look at the same pairs of features (one thread)."""
+
+    def __init__(self, size: int = 64) -> None:
+        self.size = size
+        self._memo: dict[tuple[int, int], tuple] = {}
+
+    def __call__(self, desc_a: np.ndarray, desc_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = (id(desc_a), id(desc_b))
+        hit = self._memo.get(key)
+        if hit is not None and hit[0] is desc_a and hit[1] is desc_b:
+            return hit[2]
+        out = cross_check_matches(desc_a, desc_b)
+        self._memo[key] = (desc_a, desc_b, out)  # holding the arrays keeps their ids unique
+        if len(self._memo) > self.size:
+            del self._memo[next(iter(self._memo))]
+        return out
+
+
+class OrbScorer:
+    """ORB features per frame and the RANSAC inlier count of a frame pair (cached). ``matcher``:
+    the cross-check matcher (default :func:`cross_check_matches`; a :class:`MatchCache` shares
+    matches with the refinement)."""
+
+    def __init__(self, n_features: int = 500, matcher: Callable | None = None) -> None:
         self.extract = FeatureExtractor("orb", n_features)
-        self._bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+        self.matcher = matcher or cross_check_matches
         self._cache: dict[tuple[int, int], int] = {}
 
     def features(self, gray: np.ndarray) -> FrameFeatures:
-        return self.extract(gray)
+        """Key points of a grey frame (the frame itself is not kept)."""
+        f = self.extract(gray)
+        f.image = None
+        return f
 
     def inliers(self, a: FrameFeatures, b: FrameFeatures, key: tuple[int, int] | None = None) -> int:
         if key is not None and key in self._cache:
             return self._cache[key]
         n = 0
         if a.desc is not None and b.desc is not None and len(a) >= 8 and len(b) >= 8:
-            m = self._bf.match(a.desc, b.desc)
-            if len(m) >= 8:
-                pa = a.pts[[x.queryIdx for x in m]]
-                pb = b.pts[[x.trainIdx for x in m]]
+            qi, ti = self.matcher(a.desc, b.desc)
+            if len(qi) >= 8:
+                pa, pb = a.pts[qi], b.pts[ti]
                 F, mask = cv2.findFundamentalMat(pa, pb, cv2.FM_RANSAC, 1.5, 0.99, 200)
                 if F is not None and mask is not None:
                     n = int(mask.sum())
@@ -89,6 +166,85 @@ class Alignment:
     method: str
 
 
+class OrbSearch:
+    """The thesis' search (§15.2.1), one new frame at a time (see the module docstring).
+
+    ``ref_feats(j)`` gives the ORB features of reference frame j (0 … ``m`` − 1; asked in a window
+    that only moves forward, from the current match up to the search range, or ``1.5 s`` around the
+    GPS prior); ``prior`` (N,) is the reference frame at the same GPS position as each new frame
+    (float); ``speed_new`` (N,), ``speed_ref`` (M,) the speeds in m/s; ``stopped`` (N,) the stop
+    mask; ``fps`` the new drive's frame rate."""
+
+    def __init__(
+        self,
+        ref_feats: Callable[[int], FrameFeatures],
+        m: int,
+        prior: np.ndarray,
+        speed_new: np.ndarray,
+        speed_ref: np.ndarray,
+        stopped: np.ndarray,
+        fps: float,
+        scorer: OrbScorer | None = None,
+    ) -> None:
+        self.ref_feats, self.m = ref_feats, m
+        self.prior, self.speed_new, self.speed_ref, self.stopped = prior, speed_new, speed_ref, stopped
+        self.fps = fps
+        self.scorer = scorer or OrbScorer()
+        self.fallbacks = 0
+        self.prev: int | None = None
+        self.history: list[int] = []
+        self.ratio_prev: float | None = None
+        self.wide = max(6, int(1.5 * fps))
+        # Metres the reference advances per frame, to turn the GPS error into a tolerance in frames.
+        self.ref_step = np.maximum(np.asarray(speed_ref, dtype=float) / fps, 0.05)
+
+    def lowest_needed(self) -> int:
+        """No reference frame below this will be asked for again."""
+        return 0 if self.prev is None else self.prev
+
+    def step(self, k: int, feat: FrameFeatures) -> tuple[int, int]:
+        """The match of new frame ``k`` (frames come in order) and the inlier count that chose it
+        (0: held over a stop, or the GPS prior)."""
+        m, prev, fps, prior = self.m, self.prev, self.fps, self.prior
+        scorer = self.scorer
+        scorer._cache.clear()  # keys are (k, j) of this frame only
+        p = int(np.clip(round(prior[k]), 0, m - 1))
+        if prev is not None and self.stopped[k]:
+            return prev, 0
+        if prev is None:
+            cands = range(max(0, p - self.wide), min(m, p + self.wide + 1))
+        else:
+            # Reference frames passed per new frame: the speed ratio of the drives, scaled like the
+            # thesis' S by how the ratio changed since the last second's mean step.
+            ratio = float(np.clip(self.speed_new[k] / max(self.speed_ref[min(prev, m - 1)], 0.5), 0.0, 4.0))
+            steps = np.diff(self.history[-int(fps) :]) if len(self.history) > 1 else np.array([ratio])
+            mean_step = float(np.mean(steps)) if len(steps) else ratio
+            if self.ratio_prev and self.ratio_prev > 0.05:
+                mean_step *= ratio / self.ratio_prev
+            self.ratio_prev = ratio
+            S = math.ceil(min(max(mean_step, ratio), 2.0 * ratio + 0.5) * 2.0) + 1
+            cands = range(prev, min(m, prev + S + 1))
+        scored = [(scorer.inliers(feat, self.ref_feats(j), (k, j)), j) for j in cands]
+        best_n = max((c for c, _ in scored), default=-1)
+        # Ties within 5 % go to the earliest frame: ORB favours frames slightly ahead.
+        best_j = next((j for c, j in scored if c >= 0.95 * best_n), None) if best_n > 0 else None
+        tol = 15.0 / self.ref_step[min(p, m - 1)]
+        if best_j is None or best_n < MIN_INLIERS:
+            # Matching failed: follow the GPS prior (never backwards).
+            best_j = p if prev is None else max(prev, p)
+            best_n = 0
+            self.fallbacks += 1
+        elif prev is not None and abs(best_j - prior[k]) > tol:
+            # Far from where GPS says (a false match, or drift): re-search around the prior.
+            cands = range(max(prev, p - self.wide), min(m, p + self.wide + 1))
+            scored = [(scorer.inliers(feat, self.ref_feats(j), (k, j)), j) for j in cands]
+            if scored:
+                best_n, best_j = max(scored)
+        self.prev = int(best_j)
+        self.history = [*self.history[-int(fps) :], self.prev]
+        return int(best_j), int(best_n)
+
+
 def align_orb(
     new_feats: list[FrameFeatures],
     ref_feats: list[FrameFeatures],
@@ -99,61 +255,31 @@ def align_orb(
     fps: float,
     scorer: OrbScorer | None = None,
 ) -> Alignment:
-    """Align new frames to reference frames (both lists of ORB features, in time order).
-
-    ``prior`` (N,) is the reference frame at the same GPS position as each new frame (float);
-    ``speed_new`` (N,), ``speed_ref`` (M,) the speeds in m/s; ``stopped`` (N,) the stop mask.
-    """
-    scorer = scorer or OrbScorer()
-    scorer._cache.clear()  # keys are frame indices of this alignment
-    n, m = len(new_feats), len(ref_feats)
+    """Align new frames to reference frames (both lists of ORB features, in time order; see
+    :class:`OrbSearch`)."""
+    search = OrbSearch(ref_feats.__getitem__, len(ref_feats), prior, speed_new, speed_ref, stopped, fps, scorer)
+    n = len(new_feats)
     refmap = np.zeros(n, np.int64)
     inl = np.zeros(n, np.int64)
-    fallbacks = 0
-    prev = None
-    history: list[int] = []
-    ratio_prev = None
-    wide = max(6, int(1.5 * fps))
-    # Metres the reference advances per frame, to turn the GPS error into a tolerance in frames.
-    ref_step = np.maximum(np.asarray(speed_ref, dtype=float) / fps, 0.05)
     for k in range(n):
-        p = int(np.clip(round(prior[k]), 0, m - 1))
-        if prev is not None and stopped[k]:
-            refmap[k], inl[k] = prev, 0
-            continue
-        if prev is None:
-            cands = range(max(0, p - wide), min(m, p + wide + 1))
-        else:
-            # Reference frames passed per new frame: the speed ratio of the drives, scaled like the
-            # thesis' S by how the ratio changed since the last second's mean step.
-            ratio = float(np.clip(speed_new[k] / max(speed_ref[min(prev, m - 1)], 0.5), 0.0, 4.0))
-            steps = np.diff(history[-int(fps) :]) if len(history) > 1 else np.array([ratio])
-            mean_step = float(np.mean(steps)) if len(steps) else ratio
-            if ratio_prev and ratio_prev > 0.05:
-                mean_step *= ratio / ratio_prev
-            ratio_prev = ratio
-            S = math.ceil(min(max(mean_step, ratio), 2.0 * ratio + 0.5) * 2.0) + 1
-            cands = range(prev, min(m, prev + S + 1))
-        scored = [(scorer.inliers(new_feats[k], ref_feats[j], (k, j)), j) for j in cands]
-        best_n = max((c for c, _ in scored), default=-1)
-        # Ties within 5 % go to the earliest frame: ORB favours frames slightly ahead.
-        best_j = next((j for c, j in scored if c >= 0.95 * best_n), None) if best_n > 0 else None
-        tol = 15.0 / ref_step[min(p, m - 1)]
-        if best_j is None or best_n < MIN_INLIERS:
-            # Matching failed: follow the GPS prior (never backwards).
-            best_j = p if prev is None else max(prev, p)
-            best_n = 0
-            fallbacks += 1
-        elif prev is not None and abs(best_j - prior[k]) > tol:
-            # Far from where GPS says (a false match, or drift): re-search around the prior.
-            cands = range(max(prev, p - wide), min(m, p + wide + 1))
-            scored = [(scorer.inliers(new_feats[k], ref_feats[j], (k, j)), j) for j in cands]
-            if scored:
-                best_n, best_j = max(scored)
-        refmap[k], inl[k] = best_j, best_n
-        prev = int(best_j)
-        history.append(prev)
-    return Alignment(refmap, inl, fallbacks, "orb")
+        refmap[k], inl[k] = search.step(k, new_feats[k])
+    return Alignment(refmap, inl, search.fallbacks, "orb")
+
+
+def _filter_stretch(x: np.ndarray, window: int, median: int | None, length: int) -> np.ndarray:
+    """Median then local-line filter of ``x``, a stretch of ``length`` frames (or a slice of one:
+    the filter sizes follow the whole stretch)."""
+    from scipy.ndimage import median_filter
+    from scipy.signal import savgol_filter
+
+    y = median_filter(x, min(median or window, length), mode="nearest")
+    n = min(window, length)
+    return savgol_filter(y, n - (1 - n % 2), 1, mode="interp")  # an odd window of >= 3
+
+
+def _stretches(moving: np.ndarray) -> list[tuple[int, int]]:
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], moving.astype(np.int8), [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def smooth_monotone(
@@ -164,18 +290,12 @@ def smooth_monotone(
     would pull it towards the end value) filter of a match sequence (reference frame per new
     frame, may be fractional), rounded and kept non-decreasing. With ``stopped``, each stretch
     between stops is filtered on its own (a line cannot follow the corner of a stop) and stopped
-    frames repeat the previous match."""
-    from scipy.ndimage import median_filter
-    from scipy.signal import savgol_filter
-
+    frames repeat the previous match. :class:`StreamSmoother` gives the same, frame by frame."""
     x = np.asarray(refmap, dtype=float).copy()
     moving = np.ones(len(x), bool) if stopped is None else ~np.asarray(stopped, bool)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], moving.astype(np.int8), [0]])))
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
+    for a, b in _stretches(moving):
         if b - a >= 3:
-            y = median_filter(x[a:b], min(median or window, b - a), mode="nearest")
-            n = min(window, b - a)
-            x[a:b] = savgol_filter(y, n - (1 - n % 2), 1, mode="interp")  # an odd window of >= 3
+            x[a:b] = _filter_stretch(x[a:b], window, median, b - a)
     out = np.maximum.accumulate(np.round(x).astype(np.int64))
     for k in range(1, len(out)):
         if not moving[k]:
@@ -183,7 +303,71 @@ def smooth_monotone(
     return out
 
 
-def vertical_log_scale(new: FrameFeatures, ref: FrameFeatures, matcher: cv2.BFMatcher | None = None) -> float | None:
+class StreamSmoother:
+    """:func:`smooth_monotone` of an ``n``-frame sequence whose values arrive one at a time: each
+    output is given as soon as the inputs it depends on are known (``reach`` = median half-width +
+    line half-width frames ahead; at the start of a stretch, a window's worth), computed on a slice
+    that reproduces the whole-sequence filter exactly."""
+
+    def __init__(self, n: int, window: int = 9, median: int | None = None, stopped: np.ndarray | None = None) -> None:
+        self.n, self.window, self.median = n, window, median
+        self.x = np.zeros(n)
+        self.moving = np.ones(n, bool) if stopped is None else ~np.asarray(stopped, bool)
+        self.stretch = np.full(n, -1, np.int64)
+        self.bounds: list[tuple[int, int]] = _stretches(self.moving)
+        for i, (a, b) in enumerate(self.bounds):
+            self.stretch[a:b] = i
+        self.known = 0  # inputs 0 … known − 1 are in
+        self.done = 0  # outputs 0 … done − 1 are out
+        self.reach = (median or window) // 2 + window // 2
+        self._last = 0
+        self._acc = -(1 << 62)
+
+    def _needs(self, k: int) -> int:
+        """The last input index output ``k`` depends on."""
+        if not self.moving[k]:
+            return k
+        a, b = self.bounds[self.stretch[k]]
+        half, med = self.window // 2, (self.median or self.window) // 2
+        if b - a < 3:
+            return k
+        if b - a < self.window + med + 1:
+            return b - 1  # a short stretch: every output depends on all of it
+        if k < a + half:
+            return a + self.window - 1 + med
+        if k >= b - half:
+            return b - 1
+        return min(b - 1, k + self.reach)
+
+    def _value(self, k: int) -> float:
+        if not self.moving[k]:
+            return float(self.x[k])
+        a, b = self.bounds[self.stretch[k]]
+        if b - a < 3:
+            return float(self.x[k])
+        e = self._needs(k) + 1
+        s = max(a, k - self.reach)  # outputs this far from a cut slice's edge are not affected by it
+        if e == b:  # the line fitted to the stretch's last frames needs them all
+            s = max(a, min(s, b - self.window - self.reach))
+        return float(_filter_stretch(self.x[s:e], self.window, self.median, b - a)[k - s])
+
+    def push(self, value: float) -> list[int]:
+        """Add the next input; returns the outputs that became final, in order (as
+        :func:`smooth_monotone`: rounded, non-decreasing, stopped frames repeating the previous)."""
+        self.x[self.known] = value
+        self.known += 1
+        out = []
+        while self.done < self.n and self._needs(self.done) < self.known:
+            k = self.done
+            self._acc = max(self._acc, int(np.round(self._value(k))))
+            v = self._acc if k == 0 or self.moving[k] else out[-1] if out else self._last
+            self._last = v
+            out.append(v)
+            self.done += 1
+        return out
+
+
+def vertical_log_scale(new: FrameFeatures, ref: FrameFeatures, matcher: Callable | None = None) -> float | None:
     """Natural log of the vertical image scale from a new frame to a reference frame (> 0: the
     reference shows the scene larger, i.e. was taken further along the road), from ORB matches:
     RANSAC similarity inliers, then ``y_ref = a·y_new + b`` by least squares with outliers trimmed
@@ -193,11 +377,11 @@ def vertical_log_scale(new: FrameFeatures, ref: FrameFeatures, matcher: cv2.BFMa
     moving along the road scales both coordinates about the focus of expansion."""
     if new.desc is None or ref.desc is None or len(new) < 12 or len(ref) < 12:
         return None
-    m = (matcher or cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)).match(new.desc, ref.desc)
-    if len(m) < 12:
+    qi, ti = (matcher or cross_check_matches)(new.desc, ref.desc)
+    if len(qi) < 12:
         return None
-    p = new.pts[[x.queryIdx for x in m]].astype(np.float32)
-    q = ref.pts[[x.trainIdx for x in m]].astype(np.float32)
+    p = new.pts[qi].astype(np.float32)
+    q = ref.pts[ti].astype(np.float32)
     _, inl = cv2.estimateAffinePartial2D(p, q, method=cv2.RANSAC, ransacReprojThreshold=2.0)
     if inl is None or inl.sum() < 10:
         return None
@@ -226,16 +410,22 @@ class ScaleRefiner:
     reference sequence; frames with fewer than 3 measured scales keep their match, stopped frames
     take the previous one. Uses its own ORB
     (1000 key points, OpenCV's default pyramid) on the 320-pixel-wide grey frames: the scale needs
-    more and finer-scaled points than the inlier count of the search does."""
+    more and finer-scaled points than the inlier count of the search does. ``n_features`` 0: the
+    caller passes the search's features instead (one ORB per frame; with a shared
+    :class:`MatchCache` as ``matcher`` the pairs the search matched are not matched again)."""
 
-    def __init__(self, n_features: int = 1000, radius: int = 3, window: int = 9) -> None:
-        self._orb = cv2.ORB_create(n_features)
+    def __init__(
+        self, n_features: int = 1000, radius: int = 3, window: int = 9, matcher: Callable | None = None
+    ) -> None:
+        self.n_features = n_features
+        self._orb = cv2.ORB_create(n_features) if n_features else None
         self.radius, self.window = radius, window
+        self.matcher = matcher
 
     def features(self, gray: np.ndarray) -> FrameFeatures:
         """Key points of a grey frame from :func:`small_gray`."""
         kps, desc = self._orb.detectAndCompute(gray, None)
-        return FrameFeatures(np.array([k.pt for k in kps], np.float32).reshape(-1, 2), desc, gray)
+        return FrameFeatures(np.array([k.pt for k in kps], np.float32).reshape(-1, 2), desc)
 
     def refine(
         self,
@@ -245,28 +435,31 @@ class ScaleRefiner:
         stopped: np.ndarray,
     ) -> np.ndarray:
         """``refmap`` (N,) re-chosen; ``new_feats``/``ref_feats`` from :meth:`features`;
-        ``stopped`` (N,) the stop mask. Frames are measured in parallel threads (OpenCV's matcher
+        ``stopped`` (N,) the stop mask. Frames are measured in parallel threads (the matcher
         releases the GIL); the result does not depend on the thread count."""
         from concurrent.futures import ThreadPoolExecutor
 
-        m, r = len(ref_feats), self.radius
-
-        def crossing(k: int) -> float:
-            matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
-            js, ls = [], []
-            for j in range(max(0, int(refmap[k]) - r), min(m, int(refmap[k]) + r + 1)):
-                v = vertical_log_scale(new_feats[k], ref_feats[j], matcher)
-                if v is not None:
-                    js.append(j)
-                    ls.append(v)
-            if len(js) >= 3:
-                slope, icpt = np.polyfit(np.array(js, float), np.array(ls), 1)
-                if slope > 1e-4:
-                    return float(np.clip(-icpt / slope, js[0], js[-1]))
-            return float(refmap[k])
-
+        m = len(ref_feats)
         moving = [k for k in range(len(new_feats)) if not stopped[k]]
         x = refmap.astype(float)
         with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-            x[moving] = list(pool.map(crossing, moving))
+            x[moving] = list(
+                pool.map(lambda k: self.crossing(int(refmap[k]), new_feats[k], ref_feats.__getitem__, m), moving)
+            )
         return np.clip(smooth_monotone(x, self.window, median=5, stopped=stopped), 0, m - 1)
+
+    def crossing(self, match: int, new: FrameFeatures, ref_feats: Callable[[int], FrameFeatures], m: int) -> float:
+        """Where the vertical log scale between a new frame and the reference frames within
+        ``radius`` of its ``match`` crosses zero (a fractional reference frame index; the match
+        itself when fewer than 3 scales could be measured)."""
+        js, ls = [], []
+        for j in range(max(0, match - self.radius), min(m, match + self.radius + 1)):
+            v = vertical_log_scale(new, ref_feats(j), self.matcher)
+            if v is not None:
+                js.append(j)
+                ls.append(v)
+        if len(js) >= 3:
+            slope, icpt = np.polyfit(np.array(js, float), np.array(ls), 1)
+            if slope > 1e-4:
+                return float(np.clip(-icpt / slope, js[0], js[-1]))
+        return float(match)

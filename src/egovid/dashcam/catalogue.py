@@ -190,6 +190,10 @@ class Catalogue(ABC):
     def segment(self, segment_id: int) -> Segment: ...
 
     @abstractmethod
+    def blob_names(self) -> set[str]:
+        """Names of every blob the catalogue refers to (segments, and drives' audio/telemetry)."""
+
+    @abstractmethod
     def close(self) -> None: ...
 
 
@@ -422,6 +426,12 @@ class _SqlCatalogue(Catalogue):
             raise KeyError(segment_id)
         return self._segment(row)
 
+    def blob_names(self) -> set[str]:
+        names = {r[0] for r in self._q("SELECT DISTINCT blob FROM segments")}
+        if self.get_meta("fleet_schema") is not None:  # drives' audio and telemetry (fleetstore.py)
+            names |= {r[0] for r in self._q("SELECT streams_blob FROM drive_meta WHERE streams_blob IS NOT NULL")}
+        return names
+
 
 class SqliteCatalogue(_SqlCatalogue):
     """The embedded catalogue: one SQLite file (WAL journal, foreign keys, R*Tree index)."""
@@ -479,21 +489,10 @@ CREATE INDEX IF NOT EXISTS path_index_box ON path_index USING gist (box(point(mi
     )
 
     def __init__(self, url: str, schema: str, *, create: bool = False) -> None:
-        try:
-            import psycopg
-        except ImportError:  # pragma: no cover - psycopg is a dependency
-            raise EgovidError("the PostgreSQL catalogue needs psycopg", "pip install 'psycopg[binary]'") from None
         if not re.fullmatch(r"[a-z_][a-z0-9_]{0,62}", schema):
             raise EgovidError(f"catalogue schema name {schema!r} is not valid", "use lower-case letters, digits, _")
         self.url, self.schema = url, schema
-        try:
-            self._db = psycopg.connect(url, autocommit=True, connect_timeout=10)
-        except psycopg.Error as e:
-            why = (str(e).strip().splitlines() or ["no reason given"])[-1]
-            raise EgovidError(
-                f"cannot connect to the PostgreSQL catalogue at {redact_url(url)}: {why}",
-                "check the URL, that the server is running, and the credentials (PGPASSWORD or ~/.pgpass)",
-            ) from None
+        self._db = pg_connect(url)
         exists = self._db.execute("SELECT 1 FROM pg_namespace WHERE nspname = %s", (schema,)).fetchone()
         if create and exists:
             self.close()
@@ -531,6 +530,20 @@ CREATE INDEX IF NOT EXISTS path_index_box ON path_index USING gist (box(point(mi
 
     def close(self) -> None:
         self._db.close()
+
+
+def pg_connect(url: str):
+    """An autocommit psycopg connection to ``url``, or one :class:`EgovidError` saying why not."""
+    import psycopg
+
+    try:
+        return psycopg.connect(url, autocommit=True, connect_timeout=10)
+    except psycopg.Error as e:
+        why = (str(e).strip().splitlines() or ["no reason given"])[-1]
+        raise EgovidError(
+            f"cannot connect to the PostgreSQL catalogue at {redact_url(url)}: {why}",
+            "check the URL, that the server is running, and the credentials (PGPASSWORD or ~/.pgpass)",
+        ) from None
 
 
 def redact_url(url: str) -> str:

@@ -40,7 +40,8 @@ from __future__ import annotations
 import hashlib
 import itertools
 import struct
-from collections.abc import Callable, Iterator
+import time
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 import cv2
@@ -58,7 +59,9 @@ START_KEY, START_BASELINE = 0, 1
 
 @dataclass
 class EncodedSegment:
-    """Packets of a segment plus what the encoder saw."""
+    """Packets of a segment plus what the encoder saw. ``blob`` is the whole segment blob, unless
+    the packets went to a ``spool`` file as they came (then ``blob`` is empty and :meth:`chunks`
+    gives the blob's bytes: the header, then the spool)."""
 
     blob: bytes
     frames: int
@@ -68,6 +71,46 @@ class EncodedSegment:
     # SHA-256 (first RUN_DIGEST_CHARS hex digits) of each random-access run's pictures; none
     # when the segment is one run (recon_digest covers it)
     run_digests: list[str] = field(default_factory=list)
+    header: bytes = b""
+    nbytes: int = 0  # size of the blob
+    run_offsets: list[int] = field(default_factory=list)  # see run_offsets()
+    spool: object = None
+
+    def chunks(self, size: int = 1 << 20) -> Iterator[bytes]:
+        """The blob's bytes, in pieces of at most ``size``."""
+        if self.spool is None:
+            yield self.blob
+            return
+        yield self.header
+        self.spool.seek(0)
+        while block := self.spool.read(size):
+            yield block
+
+
+@dataclass(frozen=True)
+class SegmentLayout:
+    """What a segment blob's header says: frame size, quantiser, coding structure, how each
+    random-access run starts (see :class:`SegmentBlob`) and the number of packets."""
+
+    width: int
+    height: int
+    q: int
+    gop: int
+    refresh: int
+    starts: tuple[int, ...]
+    n_packets: int
+
+    @property
+    def frames(self) -> int:
+        return self.n_packets - sum(1 for s in self.starts if s == START_BASELINE)
+
+    def plan(self) -> list[tuple[int, str, int | None]]:
+        return coding_plan(self.frames, self.gop, self.refresh, self.starts)
+
+    def run_packets(self) -> list[tuple[int, int]]:
+        """(first packet, end packet) of every random-access run, in coding order."""
+        firsts = [i for i, (_, role, _) in enumerate(self.plan()) if role in ("key", "dummy")]
+        return list(itertools.pairwise([*firsts, self.n_packets]))
 
 
 @dataclass(frozen=True)
@@ -102,50 +145,87 @@ def pack(
     starts: tuple[int, ...] | list[int] = (START_KEY,),
 ) -> bytes:
     """A segment blob: header + run layout + length-prefixed packets (in coding order)."""
+    return pack_header(width, height, q, len(packets), gop, refresh, starts) + b"".join(map(frame_packet, packets))
+
+
+def pack_header(
+    width: int, height: int, q: int, n_packets: int, gop: int, refresh: int, starts: tuple[int, ...] | list[int]
+) -> bytes:
+    """The header and run layout of a segment blob of ``n_packets`` packets."""
     pw, ph = vpx.padded_size(width, height)
-    head = _HEADER.pack(MAGIC, VERSION, width, height, pw, ph, len(packets), q, gop)
-    head += _LAYOUT.pack(refresh, len(starts)) + bytes(starts)
-    return head + b"".join(struct.pack("<I", len(p)) + p for p in packets)
+    head = _HEADER.pack(MAGIC, VERSION, width, height, pw, ph, n_packets, q, gop)
+    return head + _LAYOUT.pack(refresh, len(starts)) + bytes(starts)
+
+
+def frame_packet(packet: bytes) -> bytes:
+    """A packet as the blob stores it (length-prefixed)."""
+    return struct.pack("<I", len(packet)) + packet
 
 
 def _damaged(what: str = "is truncated") -> EgovidError:
     return EgovidError(f"segment blob {what}", "the archive is damaged; restore it from a backup")
 
 
-def parse(blob: bytes) -> SegmentBlob:
-    """The parsed segment blob (versions 1-3); raises :class:`EgovidError` on damage."""
-    if len(blob) < _HEADER.size:
+def parse_header(buf: bytes) -> tuple[SegmentLayout, int]:
+    """The layout of a segment blob from its first bytes (the header and run layout, versions 1-3)
+    and the byte offset of its first packet; raises :class:`EgovidError` on damage."""
+    if len(buf) < _HEADER.size:
         raise _damaged()
-    magic, version, w, h, _pw, _ph, n, q, gop = _HEADER.unpack_from(blob, 0)
+    magic, version, w, h, _pw, _ph, n, q, gop = _HEADER.unpack_from(buf, 0)
     if magic != MAGIC or version not in (1, 2, 3) or (version == 1 and gop != 0) or (version > 1 and gop < 1):
         raise EgovidError("segment blob has an unknown format", "the archive is damaged or from another version")
     gop = max(gop, 1)
     off = _HEADER.size
     refresh, starts = 0, (START_KEY,)
     if version >= 3:
-        if off + _LAYOUT.size > len(blob):
+        if off + _LAYOUT.size > len(buf):
             raise _damaged()
-        refresh, runs = _LAYOUT.unpack_from(blob, off)
+        refresh, runs = _LAYOUT.unpack_from(buf, off)
         off += _LAYOUT.size
-        if off + runs > len(blob):
+        if off + runs > len(buf):
             raise _damaged()
-        starts = tuple(blob[off : off + runs])
+        starts = tuple(buf[off : off + runs])
         off += runs
-    packets = []
-    for _ in range(n):
-        if off + 4 > len(blob):
-            raise _damaged()
-        (size,) = struct.unpack_from("<I", blob, off)
-        if off + 4 + size > len(blob):
-            raise _damaged()
-        packets.append(blob[off + 4 : off + 4 + size])
-        off += 4 + size
-    if off != len(blob):
-        raise _damaged("has trailing data")
-    sb = SegmentBlob(w, h, q, gop, refresh, starts, packets)
-    if any(s not in (START_KEY, START_BASELINE) for s in starts) or len(starts) != len(substreams(sb.frames, refresh)):
+    lay = SegmentLayout(w, h, q, gop, refresh, starts, n)
+    if any(s not in (START_KEY, START_BASELINE) for s in starts) or len(starts) != len(substreams(lay.frames, refresh)):
         raise _damaged("has an inconsistent layout")
-    return sb
+    return lay, off
+
+
+def iter_packets(buf: bytes, off: int, count: int) -> Iterator[bytes]:
+    """``count`` length-prefixed packets of ``buf`` from byte ``off``."""
+    for _ in range(count):
+        if off + 4 > len(buf):
+            raise _damaged()
+        (size,) = struct.unpack_from("<I", buf, off)
+        if off + 4 + size > len(buf):
+            raise _damaged()
+        yield buf[off + 4 : off + 4 + size]
+        off += 4 + size
+
+
+def parse(blob: bytes) -> SegmentBlob:
+    """The parsed segment blob (versions 1-3); raises :class:`EgovidError` on damage."""
+    lay, off = parse_header(blob)
+    packets = list(iter_packets(blob, off, lay.n_packets))
+    if off + sum(4 + len(p) for p in packets) != len(blob):
+        raise _damaged("has trailing data")
+    return SegmentBlob(lay.width, lay.height, lay.q, lay.gop, lay.refresh, lay.starts, packets)
+
+
+def run_offsets(blob: bytes) -> list[int]:
+    """Byte offset of the first packet of every random-access run, then the blob's length: what
+    a reader needs to fetch runs ``i`` … ``j − 1`` as one byte range (``[off[i], off[j])``, after the
+    header ``[0, off[0])``)."""
+    lay, off = parse_header(blob)
+    firsts = {p0 for p0, _ in lay.run_packets()}
+    out = []
+    for i in range(lay.n_packets):
+        if i in firsts:
+            out.append(off)
+        (size,) = struct.unpack_from("<I", blob, off)
+        off += 4 + size
+    return [*out, off]
 
 
 def substreams(n: int, refresh: int) -> list[tuple[int, int]]:
@@ -270,20 +350,32 @@ def encode_segment(
     baselines: Callable[[int], np.ndarray | None] | None = None,
     progress: Callable[[int], None] | None = None,
     keep_recon: list | None = None,
+    *,
+    verify: bool = False,
+    clock: dict | None = None,
+    spool=None,
 ) -> EncodedSegment:
     """Encode unpadded I420 frames; ``baselines(k)`` gives frame k's padded baseline (or None).
 
     Frames are read as a stream (``settings.gop`` of them ahead), in runs of ``settings.refresh``
     frames (:func:`substreams`); a run whose first frame has a baseline starts from it (``ra``)
     instead of a keyframe. The digest, PSNR, per-frame sizes, ``keep_recon`` and ``progress``
-    follow display order whatever the coding order."""
+    follow display order whatever the coding order. ``verify``: a decoder follows the encoder
+    packet by packet with the same reference loads, and every picture it gives must be the
+    encoder's reconstruction (else :class:`EgovidError`, before anything is stored).
+    ``clock['encode']`` / ``clock['verify']`` accumulate seconds. ``spool``: a binary file the
+    packets are written to as they come (memory stays flat however long the segment)."""
     vpx.self_test()
     pw, ph = vpx.padded_size(width, height)
     enc = vpx.VP9Encoder(pw, ph, settings)
+    dec = vpx.VP9Decoder(pw, ph, threads=settings.threads) if verify else None
+    clock = clock if clock is not None else {}
     gop = settings.gop
     q_between = min(63, settings.q + settings.gop_dq)
     grey = np.full((ph * 3 // 2, pw), 128, np.uint8)
     packets: list[bytes] = []
+    body = {"packets": 0, "bytes": 0}
+    run_body: list[int] = []  # offset of each run's first packet after the header
     starts: list[int] = []
     size_of: dict[int, int] = {}
     pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -292,18 +384,40 @@ def encode_segment(
     run_digests: list[str] = []
     acc = {"se": 0.0, "pix": 0, "next": 0}
 
-    def finish(k: int, frame: np.ndarray, pkt: bytes) -> np.ndarray:
+    def emit(pkt: bytes) -> None:
+        if spool is not None:
+            spool.write(frame_packet(pkt))
+        else:
+            packets.append(pkt)
+        body["packets"] += 1
+        body["bytes"] += 4 + len(pkt)
+
+    def code(frame, role, golden=None, last=None, q=None) -> tuple[bytes, np.ndarray]:
+        t0 = time.perf_counter()
+        pkt = enc.encode_structured(frame, role, golden, last, q)
+        rec = enc.reconstruction()
+        t1 = time.perf_counter()
+        clock["encode"] = clock.get("encode", 0.0) + t1 - t0
+        if dec is not None:
+            if not np.array_equal(dec.decode(pkt, golden, last), rec):
+                raise EgovidError(
+                    "the decoder does not reproduce the encoder's pictures",
+                    "report this with the libvpx version (egovid dashcam report shows it); nothing was stored",
+                )
+            clock["verify"] = clock.get("verify", 0.0) + time.perf_counter() - t1
+        return pkt, rec
+
+    def finish(k: int, frame: np.ndarray, coded: tuple[bytes, np.ndarray]) -> np.ndarray:
         nonlocal run_h
-        packets.append(pkt)
+        pkt, padded_rec = coded
+        emit(pkt)
         size_of[k] = size_of.get(k, 0) + len(pkt)
-        padded_rec = enc.reconstruction()
         pending[k] = (frame, vpx.crop_i420(padded_rec, width, height))
         while acc["next"] in pending:
             src, rec = pending.pop(acc["next"])
             digest_update(h, rec)
-            d = rec[:height].astype(np.int32) - src[:height].astype(np.int32)
-            acc["se"] += float(np.sum(d * d))
-            acc["pix"] += d.size
+            acc["se"] += float(cv2.norm(rec[:height], src[:height], cv2.NORM_L2SQR))
+            acc["pix"] += height * width
             if keep_recon is not None:
                 keep_recon.append(rec)
             acc["next"] += 1
@@ -331,46 +445,53 @@ def encode_segment(
             if first is None:
                 break
             b0 = base(k0)
+            run_body.append(body["bytes"])
             if b0 is not None:  # the run starts from the older drive instead of a keyframe
                 starts.append(START_BASELINE)
-                dummy = enc.encode_structured(grey, "key")
-                packets.append(dummy)
+                dummy, _ = code(grey, "key")
+                emit(dummy)
                 size_of[k0] = len(dummy)
-                finish(k0, first, enc.encode_structured(pad(first), "ra", b0))
+                finish(k0, first, code(pad(first), "ra", b0))
             else:
                 starts.append(START_KEY)
-                finish(k0, first, enc.encode_structured(pad(first), "key"))
+                finish(k0, first, code(pad(first), "key"))
             n = 1
             if gop <= 1:
                 for n, frame in enumerate(run, 2):
                     k = k0 + n - 1
-                    finish(k, frame, enc.encode_structured(pad(frame), "p", base(k)))
+                    finish(k, frame, code(pad(frame), "p", base(k)))
             elif (second := next(run, None)) is not None:
                 a = k0 + 1
-                a_rec = finish(a, second, enc.encode_structured(pad(second), "p"))
+                a_rec = finish(a, second, code(pad(second), "p"))
                 n = 2
                 while chunk := list(itertools.islice(run, gop)):  # frames a+1 … b
                     b = a + len(chunk)
                     for k, role, _ in _chunk_plan(a, b):
                         if role == "anchor":
-                            b_rec = finish(k, chunk[-1], enc.encode_structured(pad(chunk[-1]), role, base(k), a_rec))
+                            b_rec = finish(k, chunk[-1], code(pad(chunk[-1]), role, base(k), a_rec))
                         else:
                             frame = chunk[k - a - 1]
-                            finish(k, frame, enc.encode_structured(pad(frame), role, base(k), q=q_between))
+                            finish(k, frame, code(pad(frame), role, base(k), q=q_between))
                     a, a_rec = b, b_rec
                     n += len(chunk)
             k0 += n
     finally:
         enc.close()
-    if not packets:
+        if dec is not None:
+            dec.close()
+    if not body["packets"]:
         raise EgovidError("a segment with no frames cannot be encoded")
     if settings.refresh and k0 % settings.refresh:
         run_digests.append(run_h.hexdigest()[:RUN_DIGEST_CHARS])
     mse = acc["se"] / max(acc["pix"], 1)
     psnr = 10 * np.log10(255.0**2 / mse) if mse > 0 else 100.0
     sizes = [size_of[k] for k in range(k0)]
-    blob = pack(width, height, settings.q, packets, gop, settings.refresh, starts)
-    return EncodedSegment(blob, k0, h.hexdigest(), float(psnr), sizes, run_digests)
+    header = pack_header(width, height, settings.q, body["packets"], gop, settings.refresh, starts)
+    blob = b"" if spool is not None else header + b"".join(map(frame_packet, packets))
+    offsets = [len(header) + o for o in run_body] + [len(header) + body["bytes"]]
+    return EncodedSegment(
+        blob, k0, h.hexdigest(), float(psnr), sizes, run_digests, header, offsets[-1], offsets, spool
+    )
 
 
 def decode_segment(
@@ -379,17 +500,34 @@ def decode_segment(
     """Yield the unpadded I420 frames of a segment in display order from frame ``start``. Decoding
     begins at the run holding ``start`` (:func:`run_start`); frames of that run before ``start`` are
     decoded but not yielded."""
+    lay, off = parse_header(blob)
+    return decode_runs(lay, iter_packets(blob, off, lay.n_packets), 0, baselines, start)
+
+
+def decode_runs(
+    lay: SegmentLayout,
+    packets: Iterable[bytes],
+    first_run: int,
+    baselines: Callable[[int], np.ndarray | None] | None = None,
+    start: int = 0,
+) -> Iterator[np.ndarray]:
+    """Frames from ``start`` (display order), given the packets of the segment from the first
+    packet of run ``first_run`` on (which must hold ``start`` or come before it): the part of a
+    blob an extract of a stretch reads by byte range."""
     vpx.self_test()
-    sb = parse(blob)
-    w, h, gop = sb.width, sb.height, sb.gop
-    skip = _run_start(sb.refresh, start)
+    w, h, gop = lay.width, lay.height, lay.gop
+    plan = lay.plan()
+    p0 = lay.run_packets()[first_run][0]
+    skip = _run_start(lay.refresh, start)
+    if plan[p0][0] > skip:
+        raise ValueError("decoding must start at or before the run holding the first frame asked for")
     pw, ph = vpx.padded_size(w, h)
     dec = vpx.VP9Decoder(pw, ph)
     pending: dict[int, np.ndarray] = {}
     held: dict[int, np.ndarray] = {}
     nxt = skip
     try:
-        for (k, role, last_k), pkt in zip(sb.plan(), sb.packets, strict=True):
+        for (k, role, last_k), pkt in zip(plan[p0:], packets, strict=False):
             if k < skip:
                 continue
             if role == "dummy":

@@ -51,15 +51,25 @@ class GpsTrack:
         """(N, 2) east/north metres around ``origin`` (lat, lon degrees)."""
         return project(self.lat, self.lon, origin)
 
+    def motion_at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Speed (m/s) and bearing (degrees) interpolated at UTC times ``t`` (seconds)."""
+        b = np.unwrap(np.radians(self.bearing))
+        return np.interp(t, self.t, self.speed), np.degrees(np.interp(t, self.t, b)) % 360.0
+
     def at(self, t: np.ndarray, origin: tuple[float, float]) -> dict[str, np.ndarray]:
         """Positions (metres), speed and bearing interpolated at UTC times ``t``."""
         xy = self.xy(origin)
-        b = np.unwrap(np.radians(self.bearing))
+        speed, bearing = self.motion_at(t)
         return {
             "xy": np.stack([np.interp(t, self.t, xy[:, 0]), np.interp(t, self.t, xy[:, 1])], axis=1),
-            "speed": np.interp(t, self.t, self.speed),
-            "bearing": np.degrees(np.interp(t, self.t, b)) % 360.0,
+            "speed": speed,
+            "bearing": bearing,
         }
+
+    def between(self, t0: float, t1: float) -> GpsTrack:
+        """The fixes with ``t0 <= t <= t1`` (UTC seconds)."""
+        k = (self.t >= t0) & (self.t <= t1)
+        return GpsTrack(self.t[k], self.lat[k], self.lon[k], self.speed[k], self.bearing[k], self.source, self.dropped)
 
 
 def project(lat, lon, origin: tuple[float, float]) -> np.ndarray:

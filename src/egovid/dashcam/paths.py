@@ -204,3 +204,20 @@ def split_points(first: int, last: int, n_points: int, margin: int = 2) -> list[
     if last < n_points - 1 - margin:
         cuts.append(last + 1)
     return cuts
+
+
+def split_positions(positions: np.ndarray, offsets: list[float]) -> list[tuple[int, int, int, np.ndarray]]:
+    """Cut a sequence's per-frame positions (metres along a path) where its path is cut at
+    ``offsets`` (metres: 0, cut 1, …, the path's length): ``(part, k0, k1, positions on the part)``
+    for each run of frames [k0, k1) on one part (Table 15.1: the older drives' sequences are split
+    with their path)."""
+    part = np.clip(np.searchsorted(offsets[1:-1], positions, side="right"), 0, len(offsets) - 2)
+    out = []
+    k = 0
+    while k < len(part):
+        j = k
+        while j < len(part) and part[j] == part[k]:
+            j += 1
+        out.append((int(part[k]), k, j, positions[k:j] - offsets[part[k]]))
+        k = j
+    return out

@@ -14,6 +14,9 @@ sight, which is what the thesis found it to fail on.
 
 from __future__ import annotations
 
+from collections import deque
+from collections.abc import Callable
+
 import cv2
 import numpy as np
 
@@ -34,67 +37,78 @@ def descriptor(gray: np.ndarray) -> np.ndarray:
     return p.transpose(0, 2, 1, 3).reshape(h, w)
 
 
-def align_seqslam(
-    new_desc: np.ndarray,
-    ref_desc: np.ndarray,
-    prior: np.ndarray,
-    *,
-    band: int = 60,
-    seq_len: int = 10,
-    speeds: tuple[float, float] = (0.8, 1.2),
-    n_speeds: int = 9,
-    window: int = 10,
-    uniqueness: float = 0.9,
-) -> Alignment:
-    """Align (N, 32, 64) new descriptors to (M, 32, 64) reference descriptors."""
-    n, m = len(new_desc), len(ref_desc)
-    a = new_desc.reshape(n, -1)
-    b = ref_desc.reshape(m, -1)
-    big = 1e6
-    D = np.full((n, m), big, np.float32)
-    for i in range(n):
-        c = round(prior[i])
-        lo, hi = max(0, c - band), min(m, c + band + 1)
-        if lo < hi:
-            D[i, lo:hi] = np.abs(b[lo:hi] - a[i]).mean(axis=1)
-    # Local contrast enhancement along the reference axis.
-    E = np.full_like(D, np.float32(4.0))  # contrast-enhanced differences; 4 = "no match" outside the band
-    half = window // 2
-    for i in range(n):
-        row = D[i]
-        valid = row < big
-        idx = np.flatnonzero(valid)
-        if len(idx) == 0:
-            continue
-        vals = row[idx]
-        for t, j in enumerate(idx):
+class SeqslamSearch:
+    """SeqSLAM one new frame at a time: a frame's match depends on its own and the ``seq_len`` − 1
+    previous rows of the contrast-enhanced difference matrix, each computed from the reference
+    descriptors in a band of ``band`` frames around the GPS prior (``ref_desc(j)``, j < ``m``)."""
+
+    def __init__(
+        self,
+        ref_desc: Callable[[int], np.ndarray],
+        m: int,
+        prior: np.ndarray,
+        *,
+        band: int = 60,
+        seq_len: int = 10,
+        speeds: tuple[float, float] = (0.8, 1.2),
+        n_speeds: int = 9,
+        window: int = 10,
+        uniqueness: float = 0.9,
+    ) -> None:
+        self.ref_desc, self.m, self.prior = ref_desc, m, prior
+        self.band, self.seq_len, self.window, self.uniqueness = band, seq_len, window, uniqueness
+        self.vs = np.linspace(speeds[0], speeds[1], n_speeds)
+        self.rows: deque[np.ndarray] = deque(maxlen=seq_len)
+        self.prev: int | None = None
+        self.fallbacks = 0
+
+    def _row(self, i: int, desc: np.ndarray) -> np.ndarray:
+        """Row i of the contrast-enhanced differences (4 = "no match" outside the band)."""
+        m = self.m
+        e = np.full(m, np.float32(4.0))
+        c = round(self.prior[i])
+        lo, hi = max(0, c - self.band), min(m, c + self.band + 1)
+        if lo >= hi:
+            return e
+        a = desc.reshape(-1)
+        b = np.stack([self.ref_desc(j).reshape(-1) for j in range(lo, hi)])
+        vals = np.abs(b - a).mean(axis=1).astype(np.float32)
+        half = self.window // 2
+        for t in range(len(vals)):
             seg = vals[max(0, t - half) : t + half + 1]
-            E[i, j] = (vals[t] - seg.mean()) / max(seg.std(), 1e-6)
-    refmap = np.zeros(n, np.int64)
-    score = np.zeros(n)
-    vs = np.linspace(speeds[0], speeds[1], n_speeds)
-    prev = None
-    fallbacks = 0
-    cols = np.arange(m)
-    for i in range(n):
-        lo_i = max(0, i - seq_len + 1)
+            e[lo + t] = (vals[t] - seg.mean()) / max(seg.std(), 1e-6)
+        return e
+
+    def step(self, i: int, desc: np.ndarray) -> int:
+        """The match of new frame ``i`` (frames come in order)."""
+        m = self.m
+        self.rows.append(self._row(i, desc))
+        half = self.window // 2
+        cols = np.arange(m)
+        lo_i = max(0, i - self.seq_len + 1)
         best = np.full(m, np.inf)
-        for v in vs:
+        for v in self.vs:
             total = np.zeros(m)
             for t in range(lo_i, i + 1):
                 j = np.round(cols - v * (i - t)).astype(int)
                 ok = (j >= 0) & (j < m)
-                total += np.where(ok, E[t, np.clip(j, 0, m - 1)], 4.0)
+                total += np.where(ok, self.rows[t - i - 1][np.clip(j, 0, m - 1)], 4.0)
             best = np.minimum(best, total / (i - lo_i + 1))
         j_best = int(np.argmin(best))
         # Uniqueness on positive scores (enhanced differences shifted by the "no match" level).
         pos = best + 5.0
         outside = np.concatenate([pos[: max(0, j_best - half)], pos[j_best + half + 1 :]])
-        unique = np.isfinite(pos[j_best]) and (len(outside) == 0 or pos[j_best] < uniqueness * np.min(outside))
+        unique = np.isfinite(pos[j_best]) and (len(outside) == 0 or pos[j_best] < self.uniqueness * np.min(outside))
         if not unique:
-            j_best = int(np.clip(round(prior[i]), 0, m - 1)) if prev is None else min(m - 1, prev + 1)
-            fallbacks += 1
-        refmap[i] = j_best
-        score[i] = best[j_best] if np.isfinite(best[j_best]) else 0
-        prev = j_best
-    return Alignment(refmap, np.zeros(n, np.int64), fallbacks, "seqslam")
+            j_best = int(np.clip(round(self.prior[i]), 0, m - 1)) if self.prev is None else min(m - 1, self.prev + 1)
+            self.fallbacks += 1
+        self.prev = j_best
+        return j_best
+
+
+def align_seqslam(new_desc: np.ndarray, ref_desc: np.ndarray, prior: np.ndarray, **kwargs) -> Alignment:
+    """Align (N, 32, 64) new descriptors to (M, 32, 64) reference descriptors (see
+    :class:`SeqslamSearch` for the keyword arguments)."""
+    search = SeqslamSearch(ref_desc.__getitem__, len(ref_desc), prior, **kwargs)
+    refmap = np.array([search.step(i, d) for i, d in enumerate(new_desc)], np.int64)
+    return Alignment(refmap, np.zeros(len(refmap), np.int64), search.fallbacks, "seqslam")

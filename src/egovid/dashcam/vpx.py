@@ -230,11 +230,13 @@ def pad_i420(frame: np.ndarray, width: int, height: int) -> np.ndarray:
     w = frame.shape[1]
     if (w, h) == (width, height):
         return np.ascontiguousarray(frame)
-    y, u, v = split_i420(frame, w, h)
-    y = np.pad(y, ((0, height - h), (0, width - w)), mode="edge")
-    u = np.pad(u, ((0, height // 2 - h // 2), (0, width // 2 - w // 2)), mode="edge")
-    v = np.pad(v, ((0, height // 2 - h // 2), (0, width // 2 - w // 2)), mode="edge")
-    return join_i420(y, u, v)
+    import cv2
+
+    out = np.empty((height * 3 // 2, width), np.uint8)
+    dst = split_i420(out, width, height)
+    for src, d in zip(split_i420(frame, w, h), dst, strict=True):
+        cv2.copyMakeBorder(src, 0, d.shape[0] - src.shape[0], 0, d.shape[1] - src.shape[1], cv2.BORDER_REPLICATE, d)
+    return out
 
 
 def crop_i420(frame: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -328,6 +330,8 @@ class _Codec:
 @dataclass(frozen=True)
 class EncoderSettings:
     """VP9 settings: fixed quantiser ``q`` (0-63), ``speed`` (cpu-used), ``realtime`` deadline,
+    ``threads``, ``tile_columns`` (log2) and ``row_mt`` (libvpx's multi-threading; the bitstream
+    decodes to the same pictures whatever the threads),
     coding structure ``gop`` (1 = low delay; G > 1 = every G-th frame an *anchor* predicted from the
     anchor before it, the frames between coded after it from the previous frame and the anchor
     ahead, at quantiser ``q + gop_dq``; see :mod:`egovid.dashcam.codec`) and ``refresh``, the
@@ -340,8 +344,15 @@ class EncoderSettings:
     gop: int = 1
     gop_dq: int = 12
     refresh: int = 0
+    threads: int = 1
+    tile_columns: int = 0
+    row_mt: bool = False
 
     def __post_init__(self) -> None:
+        if not 1 <= self.threads <= 64:
+            raise EgovidError(f"{self.threads} encoder threads is outside 1-64", "use e.g. 2")
+        if not 0 <= self.tile_columns <= 6:
+            raise EgovidError(f"tile columns 2^{self.tile_columns} is outside 2^0-2^6", "use e.g. 1")
         if self.refresh != 0 and not 2 <= self.refresh <= 65535:
             raise EgovidError(
                 f"random-access period {self.refresh} frames is outside 2-65535", "use 0 (none) or e.g. 24"
@@ -369,7 +380,7 @@ class VP9Encoder(_Codec):
         def put(name: str, value: int) -> None:
             ctypes.c_uint.from_buffer(cfg, _CFG[name]).value = value
 
-        put("g_threads", 1)
+        put("g_threads", settings.threads)
         put("g_w", width)
         put("g_h", height)
         put("g_timebase_num", 1)
@@ -392,9 +403,9 @@ class VP9Encoder(_Codec):
             (VP8E_SET_CPUUSED, settings.speed),
             (VP8E_SET_ENABLEAUTOALTREF, 0),
             (VP8E_SET_STATIC_THRESHOLD, 0),
-            (VP9E_SET_TILE_COLUMNS, 0),
+            (VP9E_SET_TILE_COLUMNS, settings.tile_columns),
             (VP9E_SET_AQ_MODE, 0),
-            (VP9E_SET_ROW_MT, 0),
+            (VP9E_SET_ROW_MT, int(settings.row_mt)),
         ):
             self._control(ctrl, ctypes.c_int(value))
         self._pts = 0
@@ -493,10 +504,10 @@ class VP9Encoder(_Codec):
 class VP9Decoder(_Codec):
     """VP9 decoder that accepts the same GOLDEN-frame injection."""
 
-    def __init__(self, width: int, height: int) -> None:
+    def __init__(self, width: int, height: int, threads: int = 1) -> None:
         super().__init__(width, height)
         L = self.lib.lib
-        cfg = (ctypes.c_uint * 3)(1, width, height)
+        cfg = (ctypes.c_uint * 3)(threads, width, height)
         _check(
             self.lib,
             self.ctx,

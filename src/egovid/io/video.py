@@ -788,6 +788,11 @@ class VideoWriter:
         self.dropped += self._passthrough.dropped
 
     @property
+    def container(self) -> av.container.OutputContainer:
+        """The output container, for a caller adding streams of its own (before the first frame)."""
+        return self._container
+
+    @property
     def frames_written(self) -> int:
         """Number of frames written so far."""
         return self._count

@@ -1,0 +1,133 @@
+"""Dashcam ingest speed: frames per second per resolution and preset, for a root drive (no older
+drive of its road) and a joint one (aligned and coded against the root), seconds per stage, and
+ffmpeg's libvpx-vp9 encoding the same input at matched settings in the same run (the ratio), next
+to each preset's BD-rate through the archive's own ingest (benchmarks/dashcam_bdrate.py, read from
+docs/figures/dashcam_bdrate.json when it has the preset).
+
+Targets (issue 14), this 2-core machine, default preset: joint 1280x720 >= 30 fps, 1920x1080 >= 15
+fps. Run it under /work/coord/bin/timed (the whole machine).
+
+Matched settings for ffmpeg: the preset's deadline, cpu-used, threads, row-mt and tile columns; a
+fixed quantiser (-qmin = -qmax = q, -b:v 0); no look-ahead or alt-ref (-lag-in-frames 0
+-auto-alt-ref 0); a keyframe every 24 frames (the archive's random-access period); the same H.264
+input decoded by ffmpeg. ffmpeg codes every frame from the one before (libvpx's own structure),
+egovid its anchors-every-8 structure with the older drive injected, plus the alignment, the
+verification decode and the digests.
+
+Env: EGOVID_BENCH_SIZES (default 1280x720,1920x1080), EGOVID_BENCH_PRESETS (default realtime,
+balanced,archive), EGOVID_BENCH_SECONDS (drive length, default 6).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+from egovid.dashcam.ingest import IngestOptions, ingest
+from egovid.dashcam.ingest.options import PRESETS
+from egovid.dashcam.store import Archive
+from egovid.io.video import count_frames
+from egovid.synth.drive import DriveSpec, Light, render_drive
+
+from _common import ROOT, cache_dir, report
+
+SIZES = [
+    tuple(int(v) for v in s.split("x")) for s in os.environ.get("EGOVID_BENCH_SIZES", "1280x720,1920x1080").split(",")
+]
+WANTED = os.environ.get("EGOVID_BENCH_PRESETS", ",".join(PRESETS)).split(",")
+SECONDS = float(os.environ.get("EGOVID_BENCH_SECONDS", "6"))
+TARGET_FPS = {(1280, 720): 30.0, (1920, 1080): 15.0}
+
+
+def drives(w: int, h: int) -> tuple[Path, Path]:
+    """A root drive and a later one of the same road (another day's light, other lane, slower)."""
+    folder = cache_dir(f"dashcam-speed-{w}x{h}-{SECONDS:g}s")
+    noon = Light.preset("noon")
+    length = 10.0 * SECONDS
+    specs = {
+        "root": DriveSpec(legs=[("main", 20.0, 20.0 + length)], cruise=10.0, seed=1, light=noon, vehicles=4),
+        "joint": DriveSpec(
+            legs=[("main", 20.0, 20.0 + length)], cruise=10.0, seed=201, light=noon, lane_offset=0.2, vehicles=4
+        ),
+    }
+    out = []
+    for name, spec in specs.items():
+        p = folder / f"{name}.mp4"
+        if not p.exists():
+            render_drive(spec, p, width=w, height=h)
+        out.append(p)
+    return out[0], out[1]
+
+
+def ffmpeg_vp9(video: Path, opts: IngestOptions, out: Path) -> dict:
+    """ffmpeg's libvpx-vp9 of ``video`` at the preset's settings: fps and bytes."""
+    args = ["ffmpeg", "-loglevel", "error", "-y", "-i", str(video), "-an", "-c:v", "libvpx-vp9"]
+    args += ["-deadline", "realtime" if opts.realtime else "good", "-cpu-used", str(opts.speed)]
+    args += ["-threads", str(opts.threads), "-row-mt", str(int(opts.row_mt)), "-tile-columns", str(opts.tile_columns)]
+    args += ["-qmin", str(opts.q), "-qmax", str(opts.q), "-crf", str(opts.q), "-b:v", "0", "-aq-mode", "0"]
+    args += ["-lag-in-frames", "0", "-auto-alt-ref", "0", "-g", str(opts.refresh), "-keyint_min", str(opts.refresh)]
+    args += [str(out)]
+    t0 = time.perf_counter()
+    subprocess.run(args, check=True)
+    s = time.perf_counter() - t0
+    n = count_frames(video)
+    return {"fps": n / s, "seconds": s, "bytes": out.stat().st_size}
+
+
+def bd_rates() -> dict:
+    p = ROOT / "docs" / "figures" / "dashcam_bdrate.json"
+    if not p.exists():
+        return {}
+    data = json.loads(p.read_text())
+    return data.get("presets", {})
+
+
+def main() -> None:
+    if shutil.which("ffmpeg") is None:
+        raise SystemExit("ffmpeg is needed (make test installs it)")
+    results: dict = {"drive_seconds": SECONDS, "cpus": os.cpu_count(), "sizes": {}}
+    bd = bd_rates()
+    for w, h in SIZES:
+        root_video, joint_video = drives(w, h)
+        folder = root_video.parent
+        rows = {}
+        for preset in WANTED:
+            opts = IngestOptions.from_preset(preset)
+            arch = folder / f"archive-{preset}"
+            shutil.rmtree(arch, ignore_errors=True)
+            ar = Archive.create(arch)
+            r0 = ingest(ar, root_video, None, opts)
+            r1 = ingest(ar, joint_video, None, opts)
+            peer = ffmpeg_vp9(joint_video, opts, folder / f"ffmpeg-{preset}.webm")
+            row = {
+                "root_fps": r0.fps,
+                "joint_fps": r1.fps,
+                "joint_mode": [p.mode for p in r1.pieces],
+                "joint_bytes": sum(p.bytes for p in r1.pieces),
+                "root_stage_seconds": {k: round(v, 3) for k, v in r0.stage_seconds.items()},
+                "joint_stage_seconds": {k: round(v, 3) for k, v in r1.stage_seconds.items()},
+                "ffmpeg_libvpx_vp9": peer,
+                "joint_fps_over_ffmpeg": r1.fps / peer["fps"],
+                "root_fps_over_ffmpeg": r0.fps / peer["fps"],
+                "bd_rate_day_set_percent": bd.get(preset, {}).get("day"),
+            }
+            target = TARGET_FPS.get((w, h))
+            if target is not None:
+                row["joint_target_fps"] = target
+                row["joint_meets_target"] = row["joint_fps"] >= target
+            rows[preset] = row
+            print(
+                f"{w}x{h} {preset}: root {r0.fps:.1f} fps, joint {row['joint_fps']:.1f} fps "
+                f"({row['joint_mode']}), ffmpeg {peer['fps']:.1f} fps; stages {row['joint_stage_seconds']}",
+                flush=True,
+            )
+        results["sizes"][f"{w}x{h}"] = rows
+    report("dashcam_ingest_speed", results)
+
+
+if __name__ == "__main__":
+    main()

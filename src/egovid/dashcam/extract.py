@@ -1,0 +1,299 @@
+"""Getting drives back out of an archive: decoding segments (a whole drive or a stretch), the
+baselines a joint segment is decoded against, digests, and writing a lossless video.
+
+Everything here reads through a :class:`FrameSource` — the archive itself, or the snapshot of the
+reference drives an ingest task carries to another process — so the encoder's baselines and every
+later decoder's are built by the same code from the same decoded pictures (bit-exactness depends
+on it). A stretch is read by byte ranges when the catalogue knows where the segment's random-access
+runs begin (``run_offsets``): from an object store only the runs it needs travel.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import os
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from egovid.dashcam import codec, vpx
+from egovid.dashcam.blobs import BlobStore
+from egovid.dashcam.catalogue import Drive, Segment
+from egovid.errors import EgovidError
+from egovid.io.video import VideoWriter
+
+DAMAGED = "the archive or one of its reference drives is damaged"
+
+
+class FrameSource(Protocol):
+    """What decoding needs: the segments of a drive and the blob store holding them."""
+
+    blobs: BlobStore
+
+    def segments(self, drive_id: int) -> list[Segment]: ...
+
+
+class SegmentSnapshot:
+    """A :class:`FrameSource` that carries the segments it needs: those of some drives and of every
+    drive they were coded against (:func:`reference_segments`), with the blob store. What an ingest
+    hands to another thread or process (a Dask worker), which never opens the catalogue."""
+
+    def __init__(self, blobs: BlobStore, by_drive: dict[int, list[Segment]]) -> None:
+        self.blobs, self.by_drive = blobs, by_drive
+
+    def segments(self, drive_id: int) -> list[Segment]:
+        return self.by_drive.get(drive_id, [])
+
+
+def reference_segments(catalogue, drive_ids) -> dict[int, list[Segment]]:
+    """The segments of ``drive_ids`` and of every drive they refer to, directly or through others
+    (a chain through the archive ending at root segments)."""
+    out: dict[int, list[Segment]] = {}
+    todo = list(drive_ids)
+    while todo:
+        d = int(todo.pop())
+        if d in out:
+            continue
+        out[d] = catalogue.segments(d)
+        todo += [g.ref_drive_id for g in out[d] if g.ref_drive_id is not None and g.ref_drive_id not in out]
+    return out
+
+
+def segment_frames(source: FrameSource, seg: Segment, start: int = 0, stop: int | None = None) -> Iterator[np.ndarray]:
+    """Unpadded I420 frames ``start`` … ``stop − 1`` of a segment (segment numbering; default to
+    its end). Decoding begins at the random-access run holding ``start``, in this drive and in the
+    drives it refers to; with ``run_offsets`` in the catalogue only the runs needed are read."""
+    n = seg.frame_end - seg.frame_start
+    stop = n if stop is None else min(stop, n)
+    offsets = seg.params.get("run_offsets")
+    refresh = int(seg.params.get("refresh") or 0)
+    if offsets and refresh:
+        head = source.blobs.read_range(seg.blob, 0, offsets[0])
+        lay, _ = codec.parse_header(head)
+        r0 = start // refresh
+        r1 = min(len(offsets) - 1, -(-stop // refresh))
+        packets = _ranged_packets(source.blobs, seg.blob, lay, offsets, r0, r1)
+        frames = codec.decode_runs(lay, packets, r0, baselines(source, seg, r0 * refresh), start)
+    else:
+        blob = source.blobs.get(seg.blob)
+        frames = codec.decode_segment(blob, baselines(source, seg, codec.run_start(blob, start)), start)
+    return itertools.islice(frames, stop - start)
+
+
+def _ranged_packets(
+    blobs: BlobStore, sha: str, lay: codec.SegmentLayout, offsets: list[int], r0: int, r1: int, chunk: int = 8
+) -> Iterator[bytes]:
+    """The packets of runs ``r0`` … ``r1 − 1``, fetched ``chunk`` runs per byte-range read."""
+    runs = lay.run_packets()
+    for a in range(r0, r1, chunk):
+        b = min(r1, a + chunk)
+        body = blobs.read_range(sha, offsets[a], offsets[b])
+        yield from codec.iter_packets(body, 0, runs[b - 1][1] - runs[a][0])
+
+
+class DriveFrames:
+    """Decoded frames of an archived drive, by index (forward streaming with a small cache)."""
+
+    def __init__(self, source: FrameSource, drive_id: int, cache: int = 48) -> None:
+        self.source = source
+        self.segments = source.segments(drive_id)
+        if not self.segments:
+            raise EgovidError(f"drive {drive_id} has no frames in the archive", DAMAGED)
+        self._gen: Iterator[np.ndarray] | None = None
+        self._seg: Segment | None = None
+        self._pos = -1
+        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._size = cache
+
+    def _segment_of(self, idx: int) -> Segment:
+        for s in self.segments:
+            if s.frame_start <= idx < s.frame_end:
+                return s
+        raise EgovidError(f"frame {idx} is not in the archive", DAMAGED)
+
+    def get(self, idx: int) -> np.ndarray:
+        idx = int(idx)
+        if idx in self._cache:
+            self._cache.move_to_end(idx)
+            return self._cache[idx]
+        seg = self._segment_of(idx)
+        if self._seg is None or self._seg.id != seg.id or idx < self._pos:
+            self._gen = segment_frames(self.source, seg, idx - seg.frame_start)
+            self._seg, self._pos = seg, idx
+        frame = None
+        while self._pos <= idx:
+            frame = next(self._gen)
+            self._cache[self._pos] = frame
+            if len(self._cache) > self._size:
+                self._cache.popitem(last=False)
+            self._pos += 1
+        return frame
+
+
+def baselines(source: FrameSource, seg: Segment, first: int = 0) -> Callable[[int], np.ndarray] | None:
+    """The baseline builder of a joint segment (None for an intra segment), for decoding that
+    begins at the segment's frame ``first``."""
+    if seg.mode != "joint":
+        return None
+    if seg.ref_drive_id == seg.drive_id:
+        raise EgovidError(f"segment {seg.id} refers to its own drive", DAMAGED)
+    return baseline_builder(
+        DriveFrames(source, int(seg.ref_drive_id)),
+        seg.refmap,
+        seg.params["width"],
+        seg.params["height"],
+        seg.align,
+        first,
+    )
+
+
+def baseline_builder(
+    ref_frames: DriveFrames, refmap: np.ndarray, width: int, height: int, align: dict, first: int = 0
+) -> Callable[[int], np.ndarray]:
+    """Frame k's baseline: the decoded reference frame ``refmap[k]``, padded, globally aligned by
+    the stored parameters. The same function serves the encoder and every later decoder (``first``:
+    the first frame that will be asked for, where decoding begins)."""
+    pw, ph = vpx.padded_size(width, height)
+    kind, params = align.get("kind", "none"), align.get("params")
+    ahead: dict[int, np.ndarray] = {}
+    state = {"hi": first - 1}
+
+    def build(k: int) -> np.ndarray:
+        # Coding order visits an anchor before the frames behind it. Fetch every reference frame up
+        # to the anchor's in display order and keep them (at most one GOP), so that the older drive
+        # is decoded forward once even where its frame numbers jump (it stood still, we did not).
+        if k > state["hi"]:
+            for j in range(state["hi"] + 1, k + 1):
+                ahead[j] = ref_frames.get(int(refmap[j]))
+            state["hi"] = k
+        raw = ahead.pop(k) if k in ahead else ref_frames.get(int(refmap[k]))
+        for j in [j for j in ahead if j < k - 64]:  # never asked for (the first frames)
+            del ahead[j]
+        frame = vpx.pad_i420(raw, pw, ph)
+        return codec.apply_alignment(frame, pw, ph, kind, params[k] if params else None)
+
+    return build
+
+
+def checked_frames(source: FrameSource, drive: str, seg: Segment, f0: int, f1: int) -> Iterator[np.ndarray]:
+    """Frames ``f0`` … ``f1 − 1`` (drive numbering) of a segment, checked against the encoder's
+    reconstruction: run by run where the segment has per-run digests (the runs at the ends
+    of the stretch are decoded whole for it), else by the segment digest when all of it is
+    written. A mismatch raises; a video writer then leaves no output behind."""
+    n = seg.frame_end - seg.frame_start
+    a, b = f0 - seg.frame_start, f1 - seg.frame_start
+    refresh = int(seg.params.get("refresh") or 0)
+    runs = seg.params.get("run_digests") or []
+    damaged = EgovidError(
+        f"drive {drive} frames {seg.frame_start}-{seg.frame_end} do not decode to what was encoded", DAMAGED
+    )
+    if refresh and len(runs) == -(-n // refresh):
+        k = a - a % refresh
+        end = min(n, -(-b // refresh) * refresh)
+        h = hashlib.sha256()
+        for frame in segment_frames(source, seg, k, end):
+            codec.digest_update(h, frame)
+            if a <= k < b:
+                yield frame
+            k += 1
+            if k % refresh == 0 or k == n:
+                if h.hexdigest()[: codec.RUN_DIGEST_CHARS] != runs[(k - 1) // refresh]:
+                    raise damaged
+                if k >= b:
+                    return
+                h = hashlib.sha256()
+        raise damaged  # the bitstream ended early
+    # No per-run digests (one run, or an archive written before they existed).
+    h = hashlib.sha256()
+    got = 0
+    for frame in segment_frames(source, seg, a, b):
+        codec.digest_update(h, frame)
+        got += 1
+        yield frame
+    if got != b - a or ((a, b) == (0, n) and h.hexdigest() != seg.params.get("recon_digest")):
+        raise damaged
+
+
+def segment_digest(source: FrameSource, seg: Segment) -> str:
+    """SHA-256 of all decoded pictures of a segment (compare with ``params['recon_digest']``)."""
+    h = hashlib.sha256()
+    for frame in segment_frames(source, seg):
+        codec.digest_update(h, frame)
+    return h.hexdigest()
+
+
+def drive_frames(source: FrameSource, drive: Drive, f0: int, f1: int) -> Iterator[np.ndarray]:
+    """Frames ``f0`` … ``f1 − 1`` of a drive, segment by segment, checked (:func:`checked_frames`)."""
+    for seg in source.segments(drive.id):
+        if seg.frame_end <= f0 or seg.frame_start >= f1:
+            continue
+        yield from checked_frames(source, drive.name, seg, max(f0, seg.frame_start), min(f1, seg.frame_end))
+
+
+def extract_video(
+    source: FrameSource,
+    drive: Drive,
+    out: str | os.PathLike,
+    progress: Callable[[int, int], None] | None = None,
+    frames: tuple[int, int] | None = None,
+    *,
+    colour=None,
+    streams: bytes | None = None,
+    crf: int | None = None,
+    audio_codec: str | None = None,
+) -> Path:
+    """Write a drive back as a lossless video (MKV/FFV1, or MP4 with lossless H.264), checked
+    against the encoder's reconstruction (:func:`checked_frames`).
+
+    ``frames``: (first, end) frame numbers of the drive to write (end exclusive; default all).
+    Decoding starts at the random-access run holding ``first``, in this drive and in the
+    drives it refers to. ``colour``: the source's colour tags (io.video.ColourTags) to tag the
+    output with; ``streams``: the drive's archived audio and telemetry (dashcam/streams.py), copied
+    for the same stretch (``audio_codec``: re-encode the audio, e.g. ``aac``); ``crf``: an MP4 for
+    sharing (H.264 at this quality) instead of a lossless one."""
+    from egovid.dashcam.streams import StreamCopier
+
+    out = Path(out)
+    ext = out.suffix.lower()
+    if ext not in (".mkv", ".mp4"):
+        raise EgovidError(f"cannot write {out.name}", "use an .mkv (FFV1) or .mp4 (lossless H.264) output")
+    f0, f1 = frames if frames is not None else (0, drive.frames)
+    if not 0 <= f0 < f1 <= drive.frames:
+        raise EgovidError(
+            f"frames {f0}-{f1 - 1} are not in drive {drive.name} (frames 0-{drive.frames - 1})",
+            "choose a range inside the drive (see `egovid dashcam show`)",
+        )
+    codec_name, options = ("ffv1", None) if ext == ".mkv" else ("libx264", {"qp": "0", "preset": "ultrafast"})
+    if crf is not None and ext == ".mp4":
+        options = {"crf": str(crf), "preset": "veryfast"}
+    done, total = 0, f1 - f0
+    with VideoWriter(
+        out,
+        drive.width,
+        drive.height,
+        drive.fps,
+        codec=codec_name,
+        crf=None,
+        preset=None,
+        pix_fmt="yuv420p",
+        options=options,
+        colour=colour,
+    ) as w:
+        copier = (
+            StreamCopier(streams, w.container, f0 / drive.fps, f1 / drive.fps, audio_codec=audio_codec)
+            if streams
+            else None
+        )
+        for frame in drive_frames(source, drive, f0, f1):
+            w.write_i420(frame, done / drive.fps)
+            done += 1
+            if progress:
+                progress(done, total)
+        if copier is not None:
+            copier.write()
+            copier.close()
+    return out

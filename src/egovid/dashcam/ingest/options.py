@@ -1,0 +1,104 @@
+"""How drives are ingested: encoder and alignment settings."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from egovid.dashcam import vpx
+from egovid.errors import EgovidError
+
+ALIGNERS = ("orb", "orb-plain", "seqslam", "gps")
+BASELINE_ALIGN = ("none", "gain", "similarity")
+
+#: Named settings (``--preset``); explicit options override them. Measured in
+#: benchmarks/dashcam_ingest_speed.py (speed) and benchmarks/dashcam_bdrate.py (savings).
+PRESETS: dict[str, dict] = {
+    # libvpx's realtime deadline at its fastest useful speed, two threads sharing rows.
+    "realtime": {"realtime": True, "speed": 8, "threads": 2, "row_mt": True, "refine_radius": 2},
+    # realtime deadline, a slower search in the encoder.
+    "balanced": {"realtime": True, "speed": 6, "threads": 2, "row_mt": True, "refine_radius": 3},
+    # libvpx's good-quality deadline, one thread: the smallest files, the thesis-matched figures.
+    "archive": {"realtime": False, "speed": 5, "threads": 1, "row_mt": False, "refine_radius": 3},
+}
+DEFAULT_PRESET = "realtime"
+
+
+@dataclass(frozen=True)
+class IngestOptions:
+    """How a drive is ingested (the defaults are those of :data:`DEFAULT_PRESET`).
+
+    ``q``: VP9 quantiser 0-63 (lower = better quality; frames between anchors use ``q + 12``);
+    ``speed``: libvpx cpu-used; ``realtime``: realtime instead of good-quality deadline; ``gop``:
+    anchor spacing in frames (8, the default; 1 = low delay, every frame from the one before);
+    ``refresh``: random-access period in frames (a drive can be decoded from every ``refresh``-th
+    frame on: a keyframe for a root drive, a frame predicted from the older drive alone for a joint
+    one; 0 = from the start only);
+    ``aligner``: orb (thesis' ORB search, smoothed and refined by vertical image scale; the default) |
+    orb-plain (the thesis' search alone) | seqslam | gps;
+    ``baseline_align``: none | gain | similarity (global alignment of the baseline);
+    ``measure_savings``: also encode each joint piece standalone to report the saving (off by
+    default: it doubles the encoding);
+    ``verify``: a decoder follows the encoder packet by packet and must reproduce its pictures;
+    ``threads``, ``row_mt``, ``tile_columns``: libvpx's threading (``tile_columns`` is log2);
+    ``refine_radius``: reference frames either side of a match measured by the vertical-scale
+    refinement; ``refine_features``: its ORB key points per frame (0: the search's own, 500);
+    ``preset``: the name of the preset these came from (recorded with each segment).
+    """
+
+    q: int = 32
+    speed: int = 8
+    realtime: bool = True
+    gop: int = 8
+    refresh: int = 24
+    aligner: str = "orb"
+    baseline_align: str = "none"
+    measure_savings: bool = False
+    verify: bool = True
+    threads: int = 2
+    row_mt: bool = True
+    tile_columns: int = 0
+    refine_radius: int = 2
+    refine_features: int = 1000
+    preset: str | None = "realtime"
+
+    @classmethod
+    def from_preset(cls, preset: str | None = None, **overrides) -> IngestOptions:
+        """The options of a named preset (:data:`PRESETS`; default :data:`DEFAULT_PRESET`), with
+        ``overrides`` (those that are not None) on top."""
+        name = preset or DEFAULT_PRESET
+        if name not in PRESETS:
+            raise EgovidError(f"unknown preset {name!r}", f"choose one of {', '.join(PRESETS)}")
+        given = {k: v for k, v in overrides.items() if v is not None}
+        return cls(**{**PRESETS[name], **given, "preset": name})
+
+    def check(self) -> IngestOptions:
+        """Raise :class:`EgovidError` for settings that cannot work (before any work starts)."""
+        if not 0 <= self.q <= 63:
+            raise EgovidError(f"quantiser {self.q} is outside 0-63", "use e.g. --q 32")
+        if not 0 <= self.speed <= 9:
+            raise EgovidError(f"--speed {self.speed} is outside 0-9", "use e.g. 5")
+        self.encoder_settings(30.0)  # checks gop and the random-access period
+        if self.aligner not in ALIGNERS:
+            raise EgovidError(f"unknown aligner {self.aligner!r}", f"choose one of {', '.join(ALIGNERS)}")
+        if self.refine_features != 0 and not 100 <= self.refine_features <= 5000:
+            raise EgovidError(f"{self.refine_features} refinement features is outside 100-5000", "use 0 or 1000")
+        if not 1 <= self.refine_radius <= 10:
+            raise EgovidError(f"refinement radius {self.refine_radius} is outside 1-10", "use 2 or 3")
+        if self.baseline_align not in BASELINE_ALIGN:
+            raise EgovidError(
+                f"unknown baseline alignment {self.baseline_align!r}", f"choose one of {', '.join(BASELINE_ALIGN)}"
+            )
+        return self
+
+    def encoder_settings(self, fps: float) -> vpx.EncoderSettings:
+        return vpx.EncoderSettings(
+            q=self.q,
+            speed=self.speed,
+            realtime=self.realtime,
+            fps=round(fps) or 30,
+            gop=self.gop,
+            refresh=self.refresh,
+            threads=self.threads,
+            tile_columns=self.tile_columns,
+            row_mt=self.row_mt,
+        )

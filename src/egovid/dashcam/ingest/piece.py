@@ -1,0 +1,359 @@
+"""The stages of an ingest that see pictures, for one piece: choose the baseline, align, encode
+(and verify), streamed from the one decode pass with bounded memory.
+
+::
+
+    decode_once ──► [first 24 frames: light] ──► choose_baseline
+         │                                            │
+         └──► small grey ──► StreamingAlignment ──► match k final ──► baseline k (older drive,
+                                                                          decoded forward once)
+                                                                              │
+    frame k (held until its match is final) ─────────────────────────► VP9 encode (+ lockstep
+                                                                          decode: verify) ──► blob
+
+A producer thread decodes, aligns and builds baselines; the encoder runs in the calling thread
+(libvpx, OpenCV and FFmpeg release the GIL, so the two use two cores). Memory: the lookahead,
+the ~14 frames the alignment holds back, the encoder's GOP and a short queue, whatever the length
+of the drive.
+
+The baseline is chosen by the light of the piece's first :data:`LOOKAHEAD` frames (thesis
+§15.3.2 averages over the whole sequence; frames are decoded once and not kept, so the choice is
+made before the rest arrives). The sequence's stored illumination features are the average over
+all its frames, as the thesis has them, for later drives to be matched against.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+
+import cv2
+import numpy as np
+
+from egovid.dashcam import codec, vpx
+from egovid.dashcam.align import OrbScorer, small_gray
+from egovid.dashcam.extract import FrameSource
+from egovid.dashcam.illumination import frame_features
+from egovid.dashcam.ingest.frames import InputFrame, RefFrames
+from egovid.dashcam.ingest.options import IngestOptions
+from egovid.dashcam.ingest.records import DriveTrack, EncodedPiece, PiecePlan
+from egovid.dashcam.ingest.stages import choose_baseline
+from egovid.dashcam.ingest.timeline import StreamingAlignment
+from egovid.errors import EgovidError
+
+LOOKAHEAD = 24  # frames whose light chooses the baseline (one random-access period)
+QUEUE = 6  # frames in flight between the producer and the encoder
+
+
+def _illumination(gray: np.ndarray) -> np.ndarray:
+    return frame_features(cv2.resize(gray, (160, 90), interpolation=cv2.INTER_AREA))
+
+
+class _Pipe:
+    """A bounded queue between threads that carries an exception or the end, and gives up when
+    the other side has stopped."""
+
+    _END = object()
+
+    def __init__(self, size: int) -> None:
+        self.q: queue.Queue = queue.Queue(size)
+        self.stop = threading.Event()
+
+    def put(self, item) -> None:
+        while not self.stop.is_set():
+            try:
+                self.q.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+        raise _StoppedError
+
+    def close(self, error: BaseException | None = None) -> None:
+        with contextlib.suppress(_StoppedError):
+            self.put(error if error is not None else self._END)
+
+    def __iter__(self):
+        while True:
+            item = self.q.get()
+            if item is self._END:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+
+
+class _StoppedError(Exception):
+    pass
+
+
+class _Discard:
+    """A spool that keeps nothing (the standalone encode is measured, not stored)."""
+
+    def write(self, data: bytes) -> int:
+        return len(data)
+
+
+class _PieceRun:
+    """One piece on its way through the stages (see the module docstring)."""
+
+    def __init__(self, source, piece, frames, track, fps, size, opts, clock) -> None:
+        self.source, self.piece, self.frames, self.track = source, piece, frames, track
+        self.fps, self.size, self.opts, self.clock = fps, size, opts, clock
+        self.n = piece.length
+        self.stopped = np.asarray(track.stopped[piece.frames[0] : piece.frames[1]], bool)
+        self.illum_sum = np.zeros(8)
+        self.head: list[InputFrame | None] = []
+        self.ref = None
+        self.refs: RefFrames | None = None
+        self.refmap = np.full(self.n, -1, np.int64)
+        self.align: dict = {"kind": "none"}
+        self.fallbacks = 0
+        self.peak_held = 0
+        self.scorer = OrbScorer()
+
+    def tick(self, stage: str, t0: float) -> None:
+        self.clock[stage] = self.clock.get(stage, 0.0) + time.perf_counter() - t0
+
+    def next_frame(self) -> InputFrame:
+        fr = next(self.frames, None)
+        if fr is None:
+            raise EgovidError(
+                f"the video ends before frame {self.piece.frames[1]} (its container lists more frames)",
+                "the file is truncated or damaged; re-export or repair it",
+            )
+        return fr
+
+    def analyse(self, fr: InputFrame) -> InputFrame:
+        t0 = time.perf_counter()
+        self.illum_sum += _illumination(fr.gray)
+        self.tick("analyse", t0)
+        return fr
+
+    def choose(self) -> None:
+        """Stage *baseline*: the light of the first frames picks the older drive (if any may serve)."""
+        if not self.piece.candidates:
+            return
+        self.head = [self.analyse(self.next_frame()) for _ in range(min(self.n, LOOKAHEAD))]
+        self.ref = choose_baseline(self.illum_sum / len(self.head), self.piece.candidates)
+        if self.ref is not None and self.opts.baseline_align != "none":
+            self.align = {"kind": self.opts.baseline_align, "params": []}
+
+    def produce(self, pipes: list[_Pipe]) -> None:
+        """Decode (the shared pass), analyse, align, build baselines; hand (k, frame, baseline)
+        to the encoder(s) in order. Runs in its own thread; errors go down the pipes."""
+        try:
+            aligner = None
+            f0, f1 = self.piece.frames
+            if self.ref is not None:
+                ref = self.ref
+                m = ref.frame_end - ref.frame_start
+                self.refs = RefFrames(
+                    self.source,
+                    ref.drive_id,
+                    ref.frame_start,
+                    m,
+                    self.size,
+                    self.clock,
+                    self.opts.refine_radius,
+                    self.opts.refine_features,
+                )
+                order = np.argsort(ref.positions, kind="stable")
+                prior = np.interp(self.piece.positions, ref.positions[order], order.astype(float))
+                speed_ref = np.abs(np.gradient(ref.positions.astype(float)) * ref.fps) if m > 1 else np.zeros(m)
+                aligner = StreamingAlignment(
+                    self.opts.aligner, self.refs, prior, self.track.speed[f0:f1], speed_ref, self.stopped, self.fps
+                )
+            held: dict[int, np.ndarray] = {}
+            k_out = 0
+            for k in range(self.n):
+                if k < len(self.head):
+                    fr, self.head[k] = self.head[k], None
+                else:
+                    fr = self.analyse(self.next_frame())
+                if aligner is None:
+                    for p in pipes:
+                        p.put((k, fr.image, None))
+                    continue
+                held[k] = fr.image
+                t0 = time.perf_counter()
+                finals = aligner.push(fr.gray)
+                self.tick("align", t0)
+                for j in finals:
+                    item = self.baseline(k_out, j, held.pop(k_out))
+                    k_out += 1
+                    low = aligner.lowest_needed()
+                    self.refs.release_below(low, min(low, j))
+                    pipes[0].put(item)
+                    for p in pipes[1:]:
+                        p.put((item[0], item[1], None))
+                self.peak_held = max(self.peak_held, len(held) + self.refs.held)
+            if aligner is not None:
+                self.fallbacks = aligner.fallbacks
+                if k_out != self.n:
+                    raise RuntimeError(f"the alignment gave {k_out} of {self.n} matches")
+            for p in pipes:
+                p.close()
+        except _StoppedError:
+            pass
+        except BaseException as exc:  # handed to the encoder's thread
+            for p in pipes:
+                p.close(exc)
+
+    def baseline(self, k: int, j: int, image: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+        """Frame k's baseline: the older drive's frame j (its sequence's numbering), padded and,
+        with ``--baseline-align``, globally aligned (parameters estimated here, stored)."""
+        t0 = time.perf_counter()
+        w, h = self.size
+        pw, ph = vpx.padded_size(w, h)
+        self.refmap[k] = self.ref.frame_start + j
+        raw = self.refs.image(j)
+        params = None
+        if self.align["kind"] == "gain":
+            params = codec.estimate_gain(image[:h], raw[:h])
+        elif self.align["kind"] == "similarity":
+            params = _similarity(self.scorer, image, raw, w, h)
+        if params is not None:
+            self.align["params"].append(params)
+        base = codec.apply_alignment(vpx.pad_i420(raw, pw, ph), pw, ph, self.align["kind"], params)
+        self.tick("baseline", t0)
+        return k, image, base
+
+
+def _encode_from(pipe: _Pipe, clock: dict, stage: str, *args, **kwargs) -> codec.EncodedSegment:
+    """codec.encode_segment of the frames coming down ``pipe`` (baselines with them)."""
+    bases: dict[int, np.ndarray] = {}
+
+    def frames() -> Iterator[np.ndarray]:
+        t0 = time.perf_counter()
+        for k, image, base in pipe:
+            clock["wait:" + stage] = clock.get("wait:" + stage, 0.0) + time.perf_counter() - t0
+            if base is not None:
+                bases[k] = base
+            yield image
+            t0 = time.perf_counter()
+
+    def baseline(k: int) -> np.ndarray | None:
+        for old in [j for j in bases if j < k - 64]:  # asked for never (a keyframe's, a P frame's)
+            del bases[old]
+        return bases.pop(k, None)
+
+    local: dict = {}
+    try:
+        return codec.encode_segment(frames(), *args, baselines=baseline, clock=local, **kwargs)
+    finally:
+        for key, v in local.items():
+            name = stage if key == "encode" else key
+            clock[name] = clock.get(name, 0.0) + v
+
+
+def encode_piece(
+    source: FrameSource,
+    piece: PiecePlan,
+    frames: Iterator[InputFrame],
+    track: DriveTrack,
+    fps: float,
+    size: tuple[int, int],
+    opts: IngestOptions,
+    progress: Callable[[str, int, int], None] | None = None,
+    done: int = 0,
+    n_total: int = 0,
+    clock: dict | None = None,
+) -> EncodedPiece:
+    """Baseline, align, encode and verify one piece, taking its frames from ``frames`` (the drive's
+    one decode pass, positioned at the piece's first frame); the blob goes to ``source.blobs``.
+    ``clock`` accumulates busy seconds per stage (decode, analyse, reference, align, baseline,
+    encode, verify, standalone) and the encoder's waits."""
+    clock = clock if clock is not None else {}
+    t_start = time.perf_counter()
+    run = _PieceRun(source, piece, frames, track, fps, size, opts, clock)
+    run.choose()
+    settings = opts.encoder_settings(fps)
+    w, h = size
+    pipes = [_Pipe(QUEUE)] + ([_Pipe(QUEUE)] if run.ref is not None and opts.measure_savings else [])
+    producer = threading.Thread(target=run.produce, args=(pipes,), name=f"egovid-piece-{piece.index}", daemon=True)
+    alone: dict = {}
+
+    def standalone() -> None:
+        try:
+            alone["seg"] = _encode_from(pipes[1], clock, "standalone", w, h, settings, spool=_Discard())
+        except BaseException as exc:
+            alone["error"] = exc
+            pipes[1].stop.set()
+
+    helper = threading.Thread(target=standalone, name="egovid-standalone", daemon=True) if len(pipes) > 1 else None
+    cb = (lambda k: progress("encode", done + k, n_total)) if progress else None
+    producer.start()
+    if helper is not None:
+        helper.start()
+    with tempfile.TemporaryFile(prefix="egovid-segment-") as spool:
+        try:
+            enc = _encode_from(pipes[0], clock, "encode", w, h, settings, progress=cb, verify=opts.verify, spool=spool)
+        finally:
+            for p in pipes:
+                p.stop.set()
+            producer.join()
+            if helper is not None:
+                helper.join()
+        if "error" in alone:
+            raise alone["error"]
+        t0 = time.perf_counter()
+        sha = source.blobs.put_chunks(enc.chunks())
+        run.tick("store", t0)
+    ref = run.ref
+    standalone_bytes = alone["seg"].nbytes if "seg" in alone else None
+    params = {
+        "width": w,
+        "height": h,
+        "q": opts.q,
+        "speed": opts.speed,
+        "realtime": opts.realtime,
+        "threads": opts.threads,
+        "gop": opts.gop,
+        "refresh": opts.refresh,
+        "preset": opts.preset,
+        "recon_digest": enc.recon_digest,
+        "run_digests": enc.run_digests,
+        "run_offsets": enc.run_offsets,
+        "psnr_y": enc.psnr_y,
+        "aligner": opts.aligner,
+        "standalone_bytes": standalone_bytes,
+        "standalone_psnr_y": alone["seg"].psnr_y if "seg" in alone else None,
+        "stopped_frames": int(run.stopped.sum()),
+        "prior_fallbacks": run.fallbacks,
+    }
+    return EncodedPiece(
+        piece.frames,
+        "joint" if ref is not None else "intra",
+        ref.drive_id if ref is not None else None,
+        ref.drive_name if ref is not None else None,
+        run.refmap,
+        run.align,
+        sha,
+        enc.nbytes,
+        params,
+        run.illum_sum / max(run.n, 1),
+        enc.psnr_y,
+        standalone_bytes,
+        int(run.stopped.sum()),
+        run.fallbacks,
+        time.perf_counter() - t_start,
+        run.peak_held,
+    )
+
+
+def _similarity(scorer: OrbScorer, image: np.ndarray, ref: np.ndarray, w: int, h: int) -> list[int]:
+    """The similarity warp (fixed point) from the reference frame to the new frame, from ORB
+    matches on the small grey copies (codec.estimate_similarity); identity when too few match."""
+    ga, gb = small_gray(image, w, h), small_gray(ref, w, h)
+    a, b = scorer.features(ga), scorer.features(gb)
+    p = None
+    if a.desc is not None and b.desc is not None:
+        m = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(a.desc, b.desc)
+        if len(m) >= 12:
+            pa, pb = a.pts[[x.queryIdx for x in m]], b.pts[[x.trainIdx for x in m]]
+            p = codec.estimate_similarity(pa, pb, ga.shape[1] / w)
+    return p or [4096, 0, 0, 0, 4096, 0]

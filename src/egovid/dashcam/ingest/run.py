@@ -1,0 +1,190 @@
+"""Running the stages for a drive: take the locks, plan, stream the pictures, commit.
+
+:func:`ingest_drive` is the whole ingest of one drive, in this process; :func:`ingest` is the same
+from file names. The locks (locks.py) are taken before the plan reads the paths and held until the
+commit: the archive lock shared, and the areas the drive crosses and every path it may split,
+exclusively. So a drive on a road another ingest is adding waits for that commit and then finds
+it as its baseline, while drives elsewhere run at the same time.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from egovid.dashcam import vpx
+from egovid.dashcam.extract import SegmentSnapshot
+from egovid.dashcam.ingest.frames import decode_once
+from egovid.dashcam.ingest.options import IngestOptions
+from egovid.dashcam.ingest.piece import encode_piece
+from egovid.dashcam.ingest.records import DriveInput, DriveTrack, IngestReport
+from egovid.dashcam.ingest.stages import NEAR, commit, paths_along, probe_stage, split_stage, track_stage, track_xy
+from egovid.dashcam.locks import ORIGIN_KEY, AreaSession, cell_keys
+from egovid.dashcam.store import Archive, ArchiveSpec
+from egovid.engine import EngineConfig, run_tasks
+from egovid.errors import EgovidError
+
+Progress = Callable[[str, int, int], None]
+
+
+def lock_areas(archive: Archive, session: AreaSession, track: DriveTrack) -> tuple[tuple[float, float], bool]:
+    """Hold the areas the drive crosses and those of every known path near it; returns the
+    metric plane's origin to plan in and whether this drive sets it (the archive has none yet: then
+    the ``origin`` area is held too, so two first drives cannot pick two origins)."""
+    while True:
+        origin = archive.origin
+        new = origin is None
+        if new:
+            session.acquire({ORIGIN_KEY})
+            origin = archive.origin
+            new = origin is None
+            if new:
+                origin = track.first_fix
+        xy = track_xy(track, origin)
+        keys = cell_keys(xy, pad=NEAR)
+        for pid in paths_along(archive.catalogue, xy):
+            keys |= cell_keys(archive.catalogue.path(pid).points)
+        if keys <= session.keys:
+            return origin, new
+        session.acquire(keys)
+
+
+def ingest_drive(
+    archive: Archive, inp: DriveInput, options: IngestOptions | None = None, progress: Progress | None = None
+) -> IngestReport:
+    """Ingest one drive: probe -> track -> (locks) -> split -> per piece: baseline, align, encode
+    -> commit. Raises :class:`EgovidError` without changing the catalogue if anything is wrong; a
+    crash leaves at most unreferenced blobs (``egovid dashcam gc``)."""
+    opts = (options or IngestOptions()).check()
+    t_start = time.perf_counter()
+    vp = probe_stage(inp)
+    track = track_stage(inp, vp)
+    if archive.catalogue.drive(inp.drive_name) is not None:
+        raise EgovidError(
+            f"a drive named {inp.drive_name!r} is already in the archive", "pass --name to choose another"
+        )
+    vpx.self_test()
+    size = (vp.info.width, vp.info.height)
+    clock: dict[str, float] = {}
+    with archive.locks.ingest(on_wait=(lambda _k: progress("wait", 0, 1)) if progress else None) as session:
+        t0 = time.perf_counter()
+        origin, new_origin = lock_areas(archive, session, track)
+        plan = split_stage(archive.catalogue, track, origin, new_origin, size)
+        clock["split"] = time.perf_counter() - t0
+        frames = decode_once(inp.files, *size, clock)
+        refs = SegmentSnapshot(archive.blobs, plan.references)
+        encoded = [
+            encode_piece(
+                refs, piece, frames, track, vp.info.fps, size, opts, progress, piece.frames[0], vp.frames, clock
+            )
+            for piece in plan.pieces
+        ]
+        frames.close()
+        t0 = time.perf_counter()
+        report = commit(archive, inp, vp, track, plan, encoded)
+        clock["commit"] = time.perf_counter() - t0
+    report.seconds = time.perf_counter() - t_start
+    report.stage_seconds = clock
+    return report
+
+
+def ingest(
+    archive: Archive,
+    video: str | os.PathLike,
+    gps: str | os.PathLike | None = None,
+    options: IngestOptions | None = None,
+    *,
+    name: str | None = None,
+    start_utc: float | None = None,
+    gps_offset: float = 0.0,
+    progress: Progress | None = None,
+) -> IngestReport:
+    """Ingest one drive from its video and GPS files (``gps`` None: the file beside the video)."""
+    inp = DriveInput(Path(video), Path(gps) if gps is not None else None, name, start_utc, gps_offset)
+    return ingest_drive(archive, inp, options, progress)
+
+
+# -- many drives --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class IngestJob:
+    """One drive for a task: which archive (its spec: a worker needs no marker), the drive, how."""
+
+    archive: ArchiveSpec
+    drive: DriveInput
+    options: IngestOptions
+
+
+@dataclass
+class IngestResult:
+    """A task's end: the drive's report, or the one-line reason it was refused (a user error: not
+    retried)."""
+
+    name: str
+    report: IngestReport | None = None
+    error: str | None = None
+
+
+def ingest_task(job: IngestJob) -> IngestResult:
+    """The whole ingest of one drive, as a task for a worker process (engine.run_tasks). Safe to run
+    again after its worker died: its token makes a repeated commit return the committed drive."""
+    archive = Archive.from_spec(job.archive)
+    try:
+        return IngestResult(job.drive.drive_name, ingest_drive(archive, job.drive, job.options))
+    except EgovidError as exc:
+        return IngestResult(job.drive.drive_name, error=exc.one_line())
+    finally:
+        archive.close()
+
+
+@dataclass
+class Batch:
+    """Drives checked and ordered for :func:`ingest_many`: ``jobs`` oldest first, and for each
+    drive the earlier ones of this batch it crosses paths with (``after``: it starts when they are
+    committed, so it can use them as its baseline)."""
+
+    jobs: list[IngestJob]
+    after: dict[str, list[str]]
+
+
+def plan_batch(archive: Archive, drives: list[DriveInput], options: IngestOptions) -> Batch:
+    """Check every drive before any work starts (video, GPS, name) and order them: by UTC start,
+    each after the earlier drives whose areas (locks.cell_keys) it shares."""
+    opts = options.check()
+    names = [d.drive_name for d in drives]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise EgovidError(
+            f"several videos would be named {', '.join(dup)}", "rename them, or ingest them apart with --name"
+        )
+    for name in names:
+        if archive.catalogue.drive(name) is not None:
+            raise EgovidError(f"a drive named {name!r} is already in the archive", "leave that video out, or rename it")
+    checked = []
+    for d in drives:
+        vp = probe_stage(d)
+        checked.append((d, track_stage(d, vp)))
+    checked.sort(key=lambda dt: float(dt[1].frame_utc[0]))
+    origin = archive.origin or checked[0][1].first_fix
+    areas = [cell_keys(track_xy(t, origin), pad=NEAR) for _, t in checked]
+    after: dict[str, list[str]] = {}
+    for i, (d, _) in enumerate(checked):
+        after[d.drive_name] = [checked[j][0].drive_name for j in range(i) if areas[i] & areas[j]]
+    jobs = [IngestJob(archive.spec, replace(d, token=d.token or uuid.uuid4().hex), opts) for d, _ in checked]
+    return Batch(jobs, after)
+
+
+def ingest_many(archive: Archive, batch: Batch, config: EngineConfig) -> Iterator[IngestResult]:
+    """Run a batch on the task engine (this process, a local pool of ``config.workers`` processes,
+    or a Dask cluster); yields each drive's result as it ends."""
+    keys = [j.drive.drive_name for j in batch.jobs]
+    for outcome in run_tasks(ingest_task, batch.jobs, config=config, keys=keys, name="ingest", after=batch.after):
+        if outcome.ok:
+            yield outcome.value
+        else:
+            yield IngestResult(outcome.key, error=f"{type(outcome.error).__name__}: {outcome.error}")

@@ -1,0 +1,167 @@
+"""The ingest pipeline's stages on their own: streamed alignment against the whole-sequence
+aligners, the matcher against OpenCV's, one decode pass with bounded memory."""
+
+import cv2
+import numpy as np
+import pytest
+
+from egovid.dashcam.align import (
+    OrbScorer,
+    ScaleRefiner,
+    align_orb,
+    cross_check_matches,
+    smooth_monotone,
+)
+from egovid.dashcam.ingest.frames import RefFrames
+from egovid.dashcam.ingest.timeline import StreamingAlignment
+from egovid.dashcam.seqslam import align_seqslam, descriptor
+
+
+def test_cross_check_matches_are_opencvs():
+    rng = np.random.default_rng(5)
+    a = rng.integers(0, 256, (300, 32), dtype=np.uint8)
+    b = np.concatenate([a[::2] ^ rng.integers(0, 2, (150, 32), dtype=np.uint8), a[:40]])  # near and exact copies
+    want = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(a, b)
+    qi, ti = cross_check_matches(a, b)
+    assert [(m.queryIdx, m.trainIdx) for m in want] == list(zip(qi.tolist(), ti.tolist(), strict=True))
+    assert len(qi) > 100
+
+
+def _view(img, z):
+    """A 320x180 view of ``img`` magnified by ``z`` about (160, 70): a camera moving forward."""
+    m = np.array([[z, 0.0, (1 - z) * 160.0], [0.0, z, (1 - z) * 70.0]])
+    return cv2.warpAffine(img, m, (320, 180), flags=cv2.INTER_LINEAR)
+
+
+class MemoryRef(RefFrames):
+    """The baseline's sequence as grey frames in memory."""
+
+    def __init__(self, grays):
+        self.m, self._grays = len(grays), grays
+        self.scorer, self.refiner = OrbScorer(), ScaleRefiner()
+        self._image, self._gray, self._feats, self._fine, self._desc = {}, {}, {}, {}, {}
+        self.low = 0
+
+    def gray(self, j):
+        assert j >= self.low, f"frame {j} asked for after the alignment said it needs none below {self.low}"
+        return self._grays[j]
+
+
+@pytest.fixture(scope="module")
+def sequences():
+    img = cv2.resize(_photo(), (320, 180))
+    ref = [_view(img, 1.0 + 0.012 * j) for j in range(70)]
+    zs = [1.0 + 0.012 * (4 + 0.8 * k) for k in range(50)]
+    zs[18:26] = [zs[18]] * 8  # a stop
+    new = [_view(img, z) for z in zs]
+    stopped = np.zeros(50, bool)
+    stopped[19:26] = True
+    rng = np.random.default_rng(2)
+    prior = np.array([4 + 0.8 * min(k, 18) + 0.8 * max(0, k - 25) for k in range(50)]) + rng.normal(0, 3, 50)
+    return ref, new, stopped, prior
+
+
+def _photo():
+    from skimage import data
+
+    return cv2.cvtColor(data.astronaut(), cv2.COLOR_RGB2GRAY)
+
+
+@pytest.mark.parametrize("kind", ["orb", "orb-plain", "seqslam", "gps"])
+def test_streamed_alignment_gives_the_whole_sequence_aligners_matches(sequences, kind):
+    """Frame by frame, with each match final at most 24 frames after its frame, the streamed
+    alignment equals the aligners run on whole sequences (as the archive did before it streamed)."""
+    ref, new, stopped, prior = sequences
+    speed_new = np.where(stopped, 0.0, 8.0)
+    speed_ref = np.full(len(ref), 10.0)
+    if kind in ("orb", "orb-plain"):
+        sc, rf = OrbScorer(), ScaleRefiner()
+        raw = align_orb(
+            [sc.features(g) for g in new], [sc.features(g) for g in ref], prior, speed_new, speed_ref, stopped, 30.0, sc
+        ).refmap
+        want = (
+            raw
+            if kind == "orb-plain"
+            else rf.refine(smooth_monotone(raw), [rf.features(g) for g in new], [rf.features(g) for g in ref], stopped)
+        )
+    elif kind == "seqslam":
+        want = align_seqslam(
+            np.stack([descriptor(g) for g in new]), np.stack([descriptor(g) for g in ref]), prior
+        ).refmap
+        for k in range(1, len(new)):
+            if stopped[k]:
+                want[k] = want[k - 1]
+    else:
+        want = np.clip(np.round(prior), 0, len(ref) - 1)
+    mem = MemoryRef(ref)
+    stream = StreamingAlignment(kind, mem, prior, speed_new, speed_ref, stopped, 30.0)
+    got, lag = [], 0
+    for k, g in enumerate(new):
+        got += stream.push(g)
+        lag = max(lag, k + 1 - len(got))
+        mem.release_below(stream.lowest_needed())
+        mem.low = stream.lowest_needed()
+    assert got == [int(v) for v in want]
+    assert lag <= (24 if kind == "orb" else 0)  # two smoothing windows (more where a stretch begins)
+
+
+def test_the_default_options_are_the_default_preset_and_options_override_presets():
+    from egovid.dashcam.ingest.options import DEFAULT_PRESET, PRESETS, IngestOptions
+    from egovid.errors import EgovidError
+
+    assert IngestOptions() == IngestOptions.from_preset(None) == IngestOptions.from_preset(DEFAULT_PRESET)
+    for name, settings in PRESETS.items():
+        opts = IngestOptions.from_preset(name, q=40, speed=None).check()
+        assert opts.q == 40 and opts.preset == name and all(getattr(opts, k) == v for k, v in settings.items())
+    with pytest.raises(EgovidError, match="unknown preset"):
+        IngestOptions.from_preset("fastest")
+
+
+class _CountingContainer:
+    """An av container that counts the frames it decodes."""
+
+    def __init__(self, container, counts, key):
+        self._c, self._counts, self._key = container, counts, key
+
+    def decode(self, *args, **kwargs):
+        for frame in self._c.decode(*args, **kwargs):
+            self._counts[self._key] = self._counts.get(self._key, 0) + 1
+            yield frame
+
+    def __getattr__(self, name):
+        return getattr(self._c, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return self._c.__exit__(*exc)
+
+
+def test_an_ingest_decodes_its_video_once_and_holds_few_frames(tmp_path, monkeypatch):
+    """A joint drive of 10 s: FFmpeg decodes each of its frames once (plus the first, which probe
+    looks at), and at most a few dozen frames of the two drives are in memory at any time."""
+    import av
+
+    from egovid.dashcam.ingest import ingest
+    from egovid.dashcam.store import Archive
+    from egovid.synth.drive import DriveSpec, Light, render_drive
+
+    noon = Light.preset("noon")
+    leg = [("main", 100.0, 200.0)]
+    for name, spec in {
+        "old": DriveSpec(legs=leg, cruise=10.0, seed=5, light=noon),
+        "new": DriveSpec(legs=leg, cruise=9.0, stops=[(50.0, 1.0)], seed=6, light=noon),
+    }.items():
+        render_drive(spec, tmp_path / f"{name}.mp4", width=160, height=96)
+    ar = Archive.create(tmp_path / "archive")
+    ingest(ar, tmp_path / "old.mp4")
+    counts: dict = {}
+    real_open = av.open
+    monkeypatch.setattr(
+        av, "open", lambda path, *a, **k: _CountingContainer(real_open(path, *a, **k), counts, str(path))
+    )
+    rep = ingest(ar, tmp_path / "new.mp4")
+    assert [p.mode for p in rep.pieces] == ["joint"] and rep.frames > 300
+    assert counts == {str(tmp_path / "new.mp4"): rep.frames + 1}
+    assert 0 < max(p.peak_frames_held for p in rep.pieces) < 80

@@ -1,0 +1,64 @@
+"""Camera metadata (ExifTool) and embedded telemetry (telemetry-parser) on the real clips."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from egovid.errors import EgovidError
+from egovid.io.metadata import ExifTool, find_tag, read_tags
+from egovid.io.telemetry import read_camera_telemetry
+
+
+def test_exiftool_reads_container_and_embedded_gpmf(karma_clip):
+    with ExifTool() as et:
+        plain = et.tags(karma_clip)
+        embedded = et.tags(karma_clip, embedded=True, duplicates=True)
+    assert plain["Main:ImageWidth"] == 854 and plain["Main:ImageHeight"] == 480
+    assert find_tag(plain, ["FirmwareVersion"]) == "HD5.02.02.00.00"
+    # -ee -a -G3:4: every GPS fix of every GPMF payload, one Copy group per sample (47 fixes, SOURCES.md).
+    lats = [v for k, v in embedded.items() if k.endswith(":GPSLatitude")]
+    assert len(lats) == 47
+    assert all(33.12 < v < 33.13 for v in lats)  # -n: signed decimal degrees
+
+
+def test_exiftool_errors_name_the_file(tmp_path):
+    bad = tmp_path / "noise.mp4"
+    bad.write_bytes(np.random.default_rng(0).integers(0, 256, 4000, dtype=np.uint8).tobytes())
+    with pytest.raises(EgovidError, match="File format error"):
+        read_tags(bad)
+    with pytest.raises(EgovidError, match="not found"):
+        read_tags(tmp_path / "missing.mp4")
+
+
+def test_exiftool_missing_is_a_clear_error(monkeypatch):
+    monkeypatch.setenv("PATH", "/nonexistent")
+    with pytest.raises(EgovidError, match=r"ExifTool is not installed.*libimage-exiftool-perl"):
+        ExifTool().start()
+
+
+def test_gopro_telemetry(karma_clip):
+    tel = read_camera_telemetry(karma_clip)
+    assert (tel.make, tel.model) == ("GoPro", "HERO5 Black")
+    assert tel.has_gyro
+    imu = tel.imu
+    # 400 Hz gyro (SOURCES.md) over the 12.1 s clip, on the video clock.
+    assert 395 < imu.rate_hz < 402
+    assert imu.times[0] == pytest.approx(0.0, abs=0.05) and imu.times[-1] == pytest.approx(12.06, abs=0.1)
+    assert np.all(np.diff(imu.times) > 0)
+    # rad/s: a gimbal-held drone turns at most a few rad/s; the final pan is clearly visible.
+    rate = np.linalg.norm(imu.gyro, axis=1)
+    assert rate.max() < 5.0 and rate[imu.times > 11.8].mean() > 0.5 > rate[imu.times < 11].max()
+    # The accelerometer at rest-ish sees gravity (m/s²).
+    assert np.median(np.linalg.norm(imu.accel, axis=1)) == pytest.approx(9.8, abs=1.0)
+    assert (tel.lens_mode, tel.lens_name) == ("M", "Medium")
+    assert tel.electronically_stabilized is False
+    assert tel.image_orientation is None  # HERO5 records no CORI/IORI
+
+
+def test_no_telemetry_is_empty_not_an_error(handheld_clip, tmp_path):
+    tel = read_camera_telemetry(handheld_clip)
+    assert tel.make is None and tel.imu is None and not tel.has_gyro
+    assert tel.lens_mode is None and tel.electronically_stabilized is None
+    with pytest.raises(EgovidError, match="not found"):
+        read_camera_telemetry(tmp_path / "missing.mp4")

@@ -25,7 +25,7 @@ Camera.width: {width}
 Camera.height: {height}
 Camera.fps: {fps}
 Camera.RGB: 0
-ORBextractor.nFeatures: 1500
+ORBextractor.nFeatures: {features}
 ORBextractor.scaleFactor: 1.2
 ORBextractor.nLevels: 8
 ORBextractor.iniThFAST: 12
@@ -52,7 +52,11 @@ def main() -> None:
     fx, fy, cx, cy, width, height, fps = sys.argv[4:11]
     with tempfile.TemporaryDirectory() as tmp:
         settings = Path(tmp) / "settings.yaml"
-        settings.write_text(SETTINGS.format(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, fps=fps))
+        # ORB-SLAM3's own settings: 1000 features up to EuRoC's 752x480, 2000 for KITTI-size frames.
+        features = 1000 if int(width) * int(height) <= 752 * 480 else 2000
+        settings.write_text(
+            SETTINGS.format(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, fps=fps, features=features)
+        )
         slam = pyorbslam3.Slam(vocab, settings, pyorbslam3.Sensor.MONOCULAR)
         rotations = {}
         try:

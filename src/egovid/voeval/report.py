@@ -18,7 +18,7 @@ import numpy as np
 
 from egovid.io.files import atomic_write_text
 from egovid.io.trajectory import Trajectory, read_tum
-from egovid.plots import plot_angles, plt, save
+from egovid.plots import plt, save
 from egovid.voeval.layout import cell_path, scene_dir
 from egovid.voeval.matrices import (
     METRICS,
@@ -84,8 +84,30 @@ def _answer_text(a) -> str:
     return text
 
 
+def _rotation_figure(path: Path, times: np.ndarray, reference: np.ndarray, curves: dict, title: str) -> Path:
+    """Yaw, pitch, roll (degrees) of the reference (black) and each odometer. The vertical range
+    follows the reference (its range + 50 %, at least ±2°), so one odometer that runs away does
+    not flatten the others; it is marked "off scale" in the legend."""
+    fig, axes = plt.subplots(3, 1, figsize=(9, 6.5), sharex=True)
+    for k, ax in enumerate(axes):
+        lo, hi = float(reference[:, k].min()), float(reference[:, k].max())
+        pad = max(0.5 * (hi - lo), 2.0)
+        lo, hi = lo - pad, hi + pad
+        ax.plot(times, reference[:, k], color="k", lw=2.0, label="reference")
+        for name, a in curves.items():
+            off = np.any((a[:, k] < lo) | (a[:, k] > hi))
+            ax.plot(times[: len(a)], a[:, k], lw=1.0, label=name + (" (off scale)" if off else ""))
+        ax.set_ylim(lo, hi)
+        ax.set_ylabel(f"{('yaw', 'pitch', 'roll')[k]} (°)")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=7)
+    axes[-1].set_xlabel("time (s)")
+    axes[0].set_title(title, fontsize=10)
+    return save(fig, path)
+
+
 def rotation_plots(out: Path, run: RunResults, figs: Path) -> list[tuple[str, str]]:
-    """Yaw, pitch, roll of the truth and of every odometer, per scene (no compression, first seed)."""
+    """Per scene (no compression, first seed): reference against every odometer."""
     seed = run.seeds[0]
     imgs = []
     for s in run.scenes:
@@ -94,16 +116,16 @@ def rotation_plots(out: Path, run: RunResults, figs: Path) -> list[tuple[str, st
             truth = SceneTruth.load(scene_dir(out, seed, info["seeded"]), s)
         except FileNotFoundError:
             continue
-        curves = {"reference": Trajectory(truth.times, truth.R).euler()}
+        curves = {}
         for vo in run.vos:
             tum = cell_path(out, vo, s, "lossless", seed).with_suffix(".tum")
             if tum.exists():
                 curves[vo] = read_tum(tum).euler()
-        if len(curves) < 2:
+        if not curves:
             continue
-        path = plot_angles(
-            figs / f"rotation_{s}.png", truth.times, curves, title=f"{s}: reference and odometers (lossless, seed {seed})"
-        )
+        ref = Trajectory(truth.times, truth.R).euler()
+        title = f"{s}: reference and odometers (lossless, seed {seed}; anchoring as scored)"
+        path = _rotation_figure(figs / f"rotation_{s}.png", truth.times, ref, curves, title)
         imgs.append((f"Rotation, {s}", f"figures/{path.name}"))
     return imgs
 

@@ -257,7 +257,7 @@ def run_grid(
 ) -> dict:
     """Prepare every missing scene and video, evaluate every missing cell.
 
-    Returns ``{"cells": n, "computed": m, "failed": k, "seconds": s}``.
+    Returns ``{"cells": n, "computed": m, "seconds": s, "stages": {stage: seconds}}``.
     """
     from egovid.voeval.adapters import make_vos
 
@@ -274,6 +274,7 @@ def run_grid(
     atomic_write_text(out / "config.json", json.dumps(asdict(cfg), indent=1))
     t0 = time.perf_counter()
     vo_names = [*cfg.vos, *(_command_name(c, i) for i, c in enumerate(cfg.commands))]
+    stages: dict[str, float] = {}
     with open_client(engine) as client:
         if client is not None and engine.scheduler is not None:
             [seen] = run_tasks(_folder_visible, [str(out)], config=engine, client=client, name="voeval-check")
@@ -283,8 +284,9 @@ def run_grid(
                     "put --out on a filesystem every worker mounts at the same path (e.g. NFS)",
                 )
 
-        def stage(name: str, fn, items: list, keys: list[str]) -> int:
+        def stage(name: str, fn, items: list, keys: list[str]) -> list:
             failures = []
+            t_stage = time.perf_counter()
             if progress:
                 progress(name, 0, len(items))
             tasks = run_tasks(
@@ -297,6 +299,7 @@ def run_grid(
                     failures.append((o.key, o.value))
                 if progress:
                     progress(name, done, len(items))
+            stages[name] = time.perf_counter() - t_stage
             return failures
 
         _raise_failures("scene", stage("scenes", prepare_scene, first, [f"{j.name}@s{j.seed}" for j in first]))
@@ -324,7 +327,7 @@ def run_grid(
         todo.sort(key=lambda c: SLOW_FIRST.get(c.vo, 9))
         failures = stage("cells", evaluate_cell, todo, [f"{c.vo}/{c.scene}/{c.level}/s{c.seed}" for c in todo])
     _raise_failures("cell", failures)
-    return {"cells": len(all_cells), "computed": len(todo), "seconds": time.perf_counter() - t0}
+    return {"cells": len(all_cells), "computed": len(todo), "seconds": time.perf_counter() - t0, "stages": stages}
 
 
 def _command_name(command: str, index: int) -> str:

@@ -6,8 +6,10 @@ Two kinds of video, as in the thesis:
   always looking at its centre, with no rotation about its optical axis (eq. 21.1–21.6); the
   picture is rendered through the exact plane-to-image homography. Used for factors 1–3.
 * **pano** — the first-person "running" motion (yaw and pitch sines, pitch at twice the yaw
-  rate) rendered from the panorama sphere, walking slowly forward so two-view methods can
-  initialise. Used for factor 4, whose challenging scene adds rolling shutter (rows read out over
+  rate) rendered from the panorama sphere of radius 10 m, the camera dollying forward and
+  back (:func:`dolly`: up to 2 cm per frame, at most 0.6 m from the centre) so two-view
+  methods can initialise while the motion stays nearly a pure rotation. Used for factor 4,
+  whose challenging scene adds rolling shutter (rows read out over
   0.9 frame) and motion blur (5 sub-frames over half a frame).
 
 Scenes (each pair differs in one factor only, everything else fixed):
@@ -164,6 +166,14 @@ def running_angles(
     return np.stack([yaw * np.sin(w * f), pitch * np.sin(2 * w * f), 0.3 * np.sin(w * f - 1.0)], axis=-1)
 
 
+def dolly(frame: float, amplitude: float = 0.3, period: float = 96.0) -> float:
+    """Forward position (metres) of the pano camera at ``frame``: it walks forward and back,
+    ``amplitude * (1 - cos(2π frame / period))`` — at most 2 cm per frame (parallax for two-view
+    methods) and never more than 0.6 m from the centre of the 10 m sphere (so the scene stays
+    "rotating": a 300-frame walk straight ahead would end 4 m from the wall)."""
+    return amplitude * (1.0 - math.cos(2 * math.pi * frame / period))
+
+
 def render_scene(
     name: str, out: Path, *, frames: int = 48, width: int = 320, height: int = 240, fps: float = 30.0, seed: int = 0
 ) -> SceneTruth:
@@ -203,11 +213,10 @@ def render_scene(
 
         intr = Intrinsics.from_hfov(width, height, 75.0)
         rend = SphereRenderer(scene_panorama("panorama", 2048, seed), intr)
-        forward = 0.02  # metres per frame in a 10 m sphere
         stride = phase / (2 * math.pi) * 24.0  # the seed's start, in frames of the 24-frame stride
         with VideoWriter(out, width, height, fps, codec="ffv1") as w:
             for k in range(frames):
-                pos = np.array([0.0, 0.0, forward * k])
+                pos = np.array([0.0, 0.0, dolly(k)])
                 if name == "pano-motion":
                     readout, exposure, sub = 0.9, 0.5, 5
                     subs = []

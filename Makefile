@@ -8,8 +8,9 @@ STAMP := $(VENV)/.installed-stamp
 # Debian's libvpx, a second VP9 build the dashcam codec can use via EGOVID_LIBVPX) and postgresql
 # (the server binaries: the tests start a throw-away server for the dashcam's PostgreSQL catalogue),
 # libimage-exiftool-perl (camera metadata and embedded GPS through pyexiftool) and chromium (the
-# headless browser that checks the archive's HTML map).
-APT_PACKAGES := ffmpeg postgresql libimage-exiftool-perl chromium
+# headless browser that checks the archive's HTML map); postgresql-postgis (the tests check the
+# catalogue's PostGIS spatial index as well as the plain GiST one).
+APT_PACKAGES := ffmpeg postgresql libimage-exiftool-perl chromium postgresql-postgis
 
 .PHONY: help install sysdeps demo test lint bench clean
 
@@ -24,6 +25,7 @@ sysdeps:
 	{ command -v initdb || ls /usr/lib/postgresql/*/bin/initdb; } >/dev/null 2>&1 || missing="$$missing postgresql"; \
 	command -v exiftool >/dev/null || missing="$$missing libimage-exiftool-perl"; \
 	command -v chromium >/dev/null || missing="$$missing chromium"; \
+	ls /usr/share/postgresql/*/extension/postgis.control >/dev/null 2>&1 || missing="$$missing postgresql-postgis"; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing system packages:$$missing"; \
 	  SUDO=$$([ "$$(id -u)" -eq 0 ] || echo sudo); \

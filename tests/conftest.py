@@ -19,15 +19,25 @@ from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 
 
-def run_cli(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
-    """Run ``python -m egovid ARGS`` and capture its output (text)."""
+def run_cli(*args: str, timeout: float = 600, cwd: str | os.PathLike | None = None) -> subprocess.CompletedProcess:
+    """Run ``python -m egovid ARGS`` (in folder ``cwd``) and capture its output (text)."""
     return subprocess.run(
         [sys.executable, "-m", "egovid", *map(str, args)],
         capture_output=True,
         text=True,
         timeout=timeout,
-        env={"COLUMNS": "200", "PATH": "/usr/bin:/bin", "HOME": str(Path.home()), "TERM": "dumb"},
+        cwd=cwd,
+        env=cli_env(),
     )
+
+
+def cli_env() -> dict[str, str]:
+    """A plain environment for a CLI subprocess (no terminal, wide lines); PYTHONPATH is kept so
+    the process runs the code under test."""
+    env = {"COLUMNS": "200", "PATH": "/usr/bin:/bin", "HOME": str(Path.home()), "TERM": "dumb"}
+    if "PYTHONPATH" in os.environ:
+        env["PYTHONPATH"] = os.environ["PYTHONPATH"]
+    return env
 
 
 def assert_one_error(r: subprocess.CompletedProcess, needle: str = "") -> None:

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import typer
 from rich.console import Console
 from rich.progress import (
     BarColumn,
@@ -20,6 +22,28 @@ from egovid.errors import EgovidError
 
 console = Console()
 err_console = Console(stderr=True)
+
+ALLOW_TRUNCATED = typer.Option(
+    False,
+    "--allow-truncated",
+    help="Process a truncated video (cut short while recording or copying): only the frames really "
+    "in the file. Without it such a file is refused, naming how many frames it holds.",
+)
+
+
+def all_or_nothing(command: Callable) -> Callable:
+    """Decorate a command whose outputs must appear together or not at all: if it fails after
+    writing some of them (disk full, an interruption), the files it created are removed and the
+    files it replaced are put back (see :func:`egovid.io.files.output_transaction`)."""
+
+    @functools.wraps(command)
+    def run(*args, **kwargs):
+        from egovid.io.files import output_transaction
+
+        with output_transaction():
+            return command(*args, **kwargs)
+
+    return run
 
 
 @contextlib.contextmanager
@@ -73,12 +97,12 @@ def parse_ints(text: str, name: str) -> tuple[int, ...]:
         raise EgovidError(f"{name} {text!r} is not a comma-separated list of integers", "write e.g. 1,5") from None
 
 
-def check_output(path: Path, *, overwrite: bool = True) -> Path:
-    """Validate an output path before long work starts."""
-    if path.exists() and path.is_dir():
-        raise EgovidError(f"output {path} is a folder", "give a file name")
-    if not path.parent.exists():
-        raise EgovidError(f"output folder {path.parent} does not exist", "create it first")
+def check_output(path: Path, *, overwrite: bool = True, inputs=(), exts: str = "") -> Path:
+    """Validate one output path before long work starts (see :func:`egovid.cli.validate.outputs`
+    to check several together)."""
+    from egovid.cli.validate import outputs
+
+    outputs(inputs, (path, exts))
     if path.exists() and not overwrite:
         raise EgovidError(f"output {path} exists", "remove it or pass --overwrite")
     return path

@@ -33,10 +33,12 @@ def init(
     ),
 ) -> None:
     """Create an empty archive."""
+    from egovid.cli.validate import output_folder
     from egovid.dashcam.archive import Archive
     from egovid.dashcam.catalogue import redact_url
     from egovid.dashcam.vpx import self_test
 
+    output_folder(archive, what="archive folder")
     ar = Archive.create(archive, db)
     cat = ar.meta["catalogue"]
     where = "SQLite" if cat["backend"] == "sqlite" else f"PostgreSQL {redact_url(cat['url'])}, schema {cat['schema']}"
@@ -82,9 +84,11 @@ def ingest(
     """
     import datetime as dt
 
+    from egovid.cli.validate import number
     from egovid.dashcam.archive import IngestOptions
     from egovid.errors import EgovidError
 
+    number(gps_offset, "--gps-offset", lo=-7 * 86400, hi=7 * 86400, unit="s")
     ar = _open(archive)
     start_utc = None
     if start is not None:

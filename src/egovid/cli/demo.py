@@ -23,6 +23,7 @@ def demo(
     """
     import numpy as np
 
+    from egovid.cli.validate import output_folder
     from egovid.io.files import atomic_write_text
     from egovid.io.trajectory import read_motion_csv, write_motion_csv, write_tum
     from egovid.motion.estimate import estimate_motion
@@ -34,6 +35,7 @@ def demo(
     from egovid.synth import motions
     from egovid.synth.fpv import render_fpv
 
+    output_folder(out, what="demo folder")
     out.mkdir(parents=True, exist_ok=True)
     fpv = out / "fpv"
     fpv.mkdir(exist_ok=True)

@@ -6,7 +6,16 @@ from pathlib import Path
 
 import typer
 
-from egovid.cli.common import check_output, console, parse_ints, parse_size, progress_bar, staged_progress
+from egovid.cli.common import (
+    ALLOW_TRUNCATED,
+    all_or_nothing,
+    console,
+    parse_ints,
+    parse_size,
+    progress_bar,
+    staged_progress,
+)
+from egovid.cli.validate import CSV, HTML, JSON, PLOT, TUM, VIDEO_OUT, choice, input_file, number, outputs, video_input
 
 app = typer.Typer(
     help="First-person video: camera motion, viewing-experience scores, FPMI-preserving stabilisation.",
@@ -18,6 +27,7 @@ HFOV_HELP = "Horizontal field of view in degrees (alternative to --focal)."
 
 
 @app.command("motion")
+@all_or_nothing
 def motion(
     video: Path = typer.Argument(..., help="Input video."),
     out: Path = typer.Option(..., "-o", "--out", help="Output CSV: frame,time,yaw,pitch,roll (degrees)."),
@@ -28,6 +38,7 @@ def motion(
     lags: str = typer.Option("1,5", help="Frame distances of pose-graph edges (thesis: 1 and 5)."),
     features: str = typer.Option("orb", help="orb | sift."),
     work_width: int = typer.Option(640, min=160, max=3840, help="Width of the downscaled copy used for features."),
+    allow_truncated: bool = ALLOW_TRUNCATED,
 ) -> None:
     """Estimate the camera rotation of every frame (thesis ch. 6).
 
@@ -36,17 +47,17 @@ def motion(
     """
     from egovid.io.camera import resolve_intrinsics
     from egovid.io.trajectory import write_motion_csv, write_tum
-    from egovid.io.video import probe
     from egovid.motion.estimate import MotionOptions, estimate_motion
 
-    check_output(out)
-    info = probe(video)
+    info = video_input(video, allow_truncated=allow_truncated)
+    tum = tum or out.parent / (out.stem + ".tum")
+    outputs([video], (out, CSV, "motion CSV"), (tum, TUM, "TUM file"), (plot, PLOT, "plot"))
+    choice(features, "--features", ("orb", "sift"))
     intr = resolve_intrinsics(info.width, info.height, focal, hfov)
     opts = MotionOptions(lags=parse_ints(lags, "--lags"), features=features, work_width=work_width)
     with progress_bar("motion", info.frame_count) as update:
         est = estimate_motion(video, intr, opts, progress=update)
     write_motion_csv(out, est.trajectory)
-    tum = tum or out.with_suffix(".tum")
     write_tum(tum, est.trajectory)
     n = len(est.trajectory)
     console.print(
@@ -64,6 +75,7 @@ def motion(
 
 
 @app.command("score")
+@all_or_nothing
 def score(
     video: Path = typer.Argument(None, help="Input video (omit when --motion is given)."),
     motion: Path = typer.Option(None, "--motion", help="Score this motion CSV (frame,time,yaw,pitch,roll) instead."),
@@ -81,6 +93,7 @@ def score(
         "coverage", help="SVE loss term: coverage (default) | thesis (eq. 8.11 literally)."
     ),
     save_motion: Path = typer.Option(None, help="When scoring a video, also save its estimated motion CSV here."),
+    allow_truncated: bool = ALLOW_TRUNCATED,
 ) -> None:
     """Score how watchable a first-person video is (thesis ch. 7–8).
 
@@ -97,7 +110,6 @@ def score(
     from egovid.io.camera import resolve_intrinsics
     from egovid.io.files import atomic_write_text
     from egovid.io.trajectory import read_motion_csv, write_motion_csv
-    from egovid.io.video import probe
     from egovid.perception.model import ViewingModel
     from egovid.perception.score import score_angles
 
@@ -107,9 +119,19 @@ def score(
             raise EgovidError(f"unknown method {m!r}", "choose ve, sve, ve2d or all")
     if (video is None) == (motion is None):
         raise EgovidError("give either a VIDEO or --motion CSV", "e.g. `egovid fpv score clip.mp4`")
-    for p in (json_out, plot, save_motion):
-        if p is not None:
-            check_output(p)
+    choice(sve_variant, "--sve-variant", ("coverage", "thesis"))
+    number(fps, "--fps", lo=0, lo_open=True, hi=1000)
+    number(d_over_f, "--d-over-f", lo=0, lo_open=True, hi=1000)
+    number(mar, "--mar", lo=0, lo_open=True, hi=10, unit="degrees")
+    number(bias, "--bias", lo=0, hi=10, unit="degrees")
+    input_file(motion, "motion CSV")
+    info = video_input(video, allow_truncated=allow_truncated) if video is not None else None
+    outputs(
+        [video, motion],
+        (json_out, JSON, "JSON"),
+        (plot, PLOT, "plot"),
+        (save_motion if video else None, CSV, "motion CSV"),
+    )
     if motion is not None and "ve2d" in methods:
         if method != "all":
             raise EgovidError("2D-VE needs the video, not a motion CSV", "pass the VIDEO instead of --motion")
@@ -117,7 +139,6 @@ def score(
     results: dict = {}
     traj = None
     if video is not None:
-        info = probe(video)
         intr = resolve_intrinsics(info.width, info.height, focal, hfov)
         rate = info.fps
     else:
@@ -186,6 +207,7 @@ def score(
 
 
 @app.command("stabilize")
+@all_or_nothing
 def stabilize_cmd(
     src: Path = typer.Argument(..., help="Input video."),
     out: Path = typer.Option(..., "-o", "--out", help="Output video (MP4/H.264; audio and timing kept)."),
@@ -203,6 +225,7 @@ def stabilize_cmd(
         0.5, min=0.01, max=20.0, help="Degrees a motion must turn back to count as an intentional extreme."
     ),
     crf: int = typer.Option(18, min=0, max=51, help="H.264 quality of the output (lower = better)."),
+    allow_truncated: bool = ALLOW_TRUNCATED,
 ) -> None:
     """Stabilise a first-person video but keep its intentional motion (thesis ch. 9).
 
@@ -217,7 +240,6 @@ def stabilize_cmd(
     from egovid.io.camera import resolve_intrinsics
     from egovid.io.files import atomic_write_text
     from egovid.io.trajectory import Trajectory, read_motion_csv, write_motion_csv
-    from egovid.io.video import probe
     from egovid.stabilize.optimize import OptimizeOptions
     from egovid.stabilize.pipeline import stabilize
     from egovid.stabilize.render import BORDERS
@@ -228,13 +250,16 @@ def stabilize_cmd(
         raise EgovidError(f"unknown method {method!r}", "choose ve or sve")
     if not (0.0 <= strength <= 1.0):
         raise EgovidError(f"strength {strength} is outside [0, 1]", "use e.g. --strength 0.7")
-    check_output(out)
-    if out.resolve() == src.resolve():
-        raise EgovidError("the output would overwrite the input", "choose another --out")
-    for p in (report, json_out):
-        if p is not None:
-            check_output(p)
-    info = probe(src)
+    info = video_input(src, allow_truncated=allow_truncated)
+    input_file(motion, "motion CSV")
+    pre = (save_motion.parent / (save_motion.name + s) for s in (".input.csv", ".output.csv")) if save_motion else ()
+    outputs(
+        [src, motion],
+        (out, VIDEO_OUT, "output video"),
+        (report, HTML, "report"),
+        (json_out, JSON, "JSON"),
+        *((p, CSV, "motion CSV") for p in pre),
+    )
     intr = resolve_intrinsics(info.width, info.height, focal, hfov)
     traj = read_motion_csv(motion) if motion is not None else None
     if traj is not None and len(traj) != info.frame_count:

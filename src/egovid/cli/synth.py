@@ -7,13 +7,15 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from egovid.cli.common import check_output, console, parse_size, progress_bar
+from egovid.cli.common import all_or_nothing, console, parse_size, progress_bar
+from egovid.cli.validate import CSV, TUM, VIDEO_OUT, choice, number, outputs
 from egovid.errors import EgovidError
 
 app = typer.Typer(help="Make synthetic test videos with known ground truth.", no_args_is_help=True)
 
 
 @app.command("fpv")
+@all_or_nothing
 def synth_fpv(
     out: Path = typer.Argument(..., help="Output video (.mp4 = H.264, .mkv = lossless FFV1)."),
     motion: str = typer.Option("running", help="running | pan | random-walk | still."),
@@ -40,9 +42,21 @@ def synth_fpv(
     """
     from egovid.io.camera import resolve_intrinsics
     from egovid.synth import motions
-    from egovid.synth.fpv import render_fpv
+    from egovid.synth.fpv import ground_truth_paths, render_fpv
+    from egovid.synth.photos import ALL
 
-    check_output(out)
+    choice(motion, "--motion", motions.MOTIONS)
+    choice(scene, "--scene", ("panorama", *ALL))
+    number(yaw_amp, "--yaw-amp", lo=-180, hi=180, unit="degrees")
+    number(pitch_amp, "--pitch-amp", lo=-90, hi=90, unit="degrees")
+    number(roll_amp, "--roll-amp", lo=-180, hi=180, unit="degrees")
+    number(pan_deg, "--pan-deg", lo=-36000, hi=36000, unit="degrees")
+    number(jitter_deg, "--jitter-deg", lo=0, hi=45, unit="degrees")
+    outputs(
+        [],
+        (out, VIDEO_OUT, "video"),
+        *zip(ground_truth_paths(out), (CSV, TUM), ("ground truth", "TUM file"), strict=True),
+    )
     w, h = parse_size(size)
     intr = resolve_intrinsics(w, h, focal, hfov)
     if motion == "running":
@@ -77,6 +91,7 @@ def synth_fpv(
 
 
 @app.command("drive")
+@all_or_nothing
 def synth_drive(
     out: Path = typer.Argument(..., help="Output video (.mp4)."),
     route: str = typer.Option("main", help="main (the main road) or side (turn off the main road at 450 m)."),
@@ -104,7 +119,19 @@ def synth_drive(
     from egovid.errors import EgovidError
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
-    check_output(out)
+    choice(gps, "--gps", ("gpx", "nmea", "csv"))
+    choice(route, "--route", ("main", "side"))
+    light_preset = Light.preset(light)
+    number(start_m, "--from", lo=0, hi=10_000, unit="m")
+    number(end_m, "--to", lo=0, hi=10_000, unit="m")
+    number(lane_offset, "--lane-offset", lo=-5, hi=5, unit="m")
+    gps_path = out.parent / (out.stem + {"gpx": ".gpx", "nmea": ".nmea", "csv": ".gps.csv"}[gps])
+    outputs(
+        [],
+        (out, ".mp4 .mkv .mov", "video"),
+        (gps_path, "", "GPS track"),
+        (out.parent / (out.stem + ".truth.csv"), CSV, "truth"),
+    )
     w, h = parse_size(size)
     if route == "main":
         legs = [("main", start_m, end_m)]
@@ -118,14 +145,22 @@ def synth_drive(
             d, wait = (float(x) for x in s.split(":"))
         except ValueError:
             raise EgovidError(f"--stop {s!r} is not DISTANCE:SECONDS", "write e.g. --stop 120:3") from None
-        stops.append((d, wait))
+        stops.append(
+            (
+                number(d, "--stop distance", lo=0, hi=10_000, unit="m"),
+                number(wait, "--stop wait", lo=0, hi=3600, unit="s"),
+            )
+        )
     change = None
     if lane_change:
         try:
             a, b = (float(x) for x in lane_change.split(":"))
         except ValueError:
             raise EgovidError(f"--lane-change {lane_change!r} is not A:B", "write e.g. --lane-change 80:120") from None
-        change = (a, b)
+        change = (
+            number(a, "--lane-change start", lo=0, hi=10_000, unit="m"),
+            number(b, "--lane-change end", lo=a, hi=10_000, unit="m"),
+        )
     try:
         t0 = dt.datetime.fromisoformat(start.replace("Z", "+00:00"))
     except ValueError:
@@ -136,7 +171,7 @@ def synth_drive(
         stops=stops,
         lane_offset=lane_offset,
         lane_change=change,
-        light=Light.preset(light),
+        light=light_preset,
         vehicles=vehicles,
         seed=seed,
         start_time=t0 if t0.tzinfo else t0.replace(tzinfo=dt.UTC),

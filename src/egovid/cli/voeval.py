@@ -71,6 +71,7 @@ def run(
     ladder), run every odometer on every video (finished cells are kept: re-running resumes), and
     score pose error, OITF and RITF."""
     from egovid.cli.common import parse_ints, parse_size
+    from egovid.cli.validate import output_folder
     from egovid.engine import EngineConfig, scheduler_address
     from egovid.voeval.runner import (
         DEFAULT_FRAMES,
@@ -83,6 +84,7 @@ def run(
     )
     from egovid.voeval.scenes import SCENES
 
+    output_folder(out, inputs=[Path(x.partition(":")[2]) for x in sequence], what="run folder")
     w, h = parse_size(size) if size else (QUICK_SIZE if quick else DEFAULT_SIZE)
     cfg = GridConfig(
         vos=_names(vo) if vo is not None else default_vos(),

@@ -97,12 +97,19 @@ def _derive(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, speed, bearing) -> 
 
 def _finish(t, lat, lon, speed, bearing, source, dropped) -> GpsTrack:
     t = np.asarray(t, dtype=float)
+    lat, lon = np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
+    # NaN or infinite times or positions are no fixes (a NaN origin would poison the archive).
+    finite = np.isfinite(t) & np.isfinite(lat) & np.isfinite(lon)
+    if not finite.all():
+        dropped = {**dropped, "not finite": int((~finite).sum())}
+    t, lat, lon = t[finite], lat[finite], lon[finite]
+    speed, bearing = np.asarray(speed, dtype=float)[finite], np.asarray(bearing, dtype=float)[finite]
     if len(t) < 2:
         raise EgovidError(f"{source} has {len(t)} valid GPS fix(es); at least 2 are needed", _FIX)
     order = np.argsort(t, kind="stable")
     t = t[order]
     keep = np.concatenate([[True], np.diff(t) > 0])  # drop duplicate timestamps (RMC+GGA pairs)
-    arrays = [np.asarray(a, dtype=float)[order][keep] for a in (lat, lon, speed, bearing)]
+    arrays = [a[order][keep] for a in (lat, lon, speed, bearing)]
     lat, lon, speed, bearing = arrays
     t = t[keep]
     if np.any(np.abs(lat) > 90) or np.any(np.abs(lon) > 180):

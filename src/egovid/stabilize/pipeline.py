@@ -20,8 +20,8 @@ from egovid.geometry import matrix_from_euler
 from egovid.io.camera import Intrinsics
 from egovid.io.trajectory import Trajectory
 from egovid.io.video import probe
-from egovid.perception.model import ViewingModel
-from egovid.perception.score import check_angles, score_angles
+from egovid.perception.model import ViewingModel, from_model_rate, to_model_rate
+from egovid.perception.score import AXES, check_angles, score_angles
 from egovid.stabilize.fpm import find_anchors, pure_fpm
 from egovid.stabilize.optimize import AxisPlan, OptimizeOptions, optimize_axis
 from egovid.stabilize.render import RenderStats, homographies, render_stabilized
@@ -88,24 +88,31 @@ def plan_motion(
     model: ViewingModel | None = None,
     opts: OptimizeOptions | None = None,
     progress: Callable[[int, int], None] | None = None,
+    times: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[str, AxisPlan]]:
-    """Edited (K, 3) motion in degrees and the per-axis plans."""
+    """Edited (K, 3) motion in degrees and the per-axis plans.
+
+    The plan is made at the model's 30 fps (the motion is resampled there and the edited motion
+    back to the video's frames), so the objective and the easing table mean the same at every
+    frame rate; the plans' anchors are in frames at 30 fps."""
     if not (0.0 <= strength <= 1.0):
         raise EgovidError(f"strength {strength} is outside [0, 1]", "use e.g. --strength 0.7")
     model = model or ViewingModel()
     opts = opts or OptimizeOptions()
-    axes = [("yaw", 0, intr.hfov_deg), ("pitch", 1, intr.vfov_deg)]
-    if keep_roll:
-        axes.append(("roll", 2, intr.hfov_deg))
-    edited = np.array(angles, dtype=float)
+    a30, _ = to_model_rate(angles, fps, times)
+    axes = ["yaw", "pitch"] + (["roll"] if keep_roll else [])
+    edited30 = np.array(a30)
+    if not keep_roll:
+        edited30[:, 2] = np.median(angles[:, 2])
     plans: dict[str, AxisPlan] = {}
-    for step, (name, col, fov) in enumerate(axes):
-        plans[name] = optimize_axis(angles[:, col], name, fov, fps, model, opts)
-        edited[:, col] = plans[name].edited
+    for step, name in enumerate(axes):
+        col = AXES.index(name)
+        # Roll's intervals are shifted by the yaw and pitch the viewer will see (eq. 8.2-8.3).
+        plans[name] = optimize_axis(a30[:, col], name, intr.hfov_deg, intr.vfov_deg, model, opts, context=edited30)
+        edited30[:, col] = plans[name].edited
         if progress is not None:
             progress(step + 1, len(axes))
-    if not keep_roll:
-        edited[:, 2] = np.median(angles[:, 2])
+    edited = from_model_rate(edited30, fps, len(angles), times)
     edited = angles + strength * (edited - angles)
     return edited, plans
 

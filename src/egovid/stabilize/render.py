@@ -131,7 +131,7 @@ def render_stabilized(
     t0 = time.perf_counter()
     n = 0
     flags = cv2.INTER_LINEAR
-    with VideoWriter(dst, w, h, info.fps, crf=crf, preset=preset, audio_from=src, metadata_from=src) as writer:
+    with VideoWriter(dst, w, h, info.fps, crf=crf, preset=preset, keep_from=src) as writer:
         for frame in iter_frames(src):
             k = frame.index
             if k >= len(H):

@@ -1,0 +1,286 @@
+"""A table of bad inputs across every command: each gets exit status 2, exactly one ``error:``
+line naming the problem, no traceback, and leaves every file as it was (the folder is snapshot
+before and after, hidden temporary files included).
+
+Most cases fail in validation, so they run in this process through :func:`egovid.cli.run` (the
+same code path as the ``egovid`` command, minus process start-up); a sample runs as real
+subprocesses. Fault tests (read-only folders, a full disk, signals) are in test_failures.py.
+"""
+
+from __future__ import annotations
+
+import gc
+import hashlib
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from egovid.cli import run
+from egovid.synth.fpv import render_fpv
+
+from conftest import assert_one_error, run_cli
+
+GPX_HEAD = '<?xml version="1.0"?>\n<gpx version="1.0" creator="t"><trk><trkseg>\n'
+GPX_TAIL = "</trkseg></trk></gpx>\n"
+
+
+def _gpx(points: list[tuple[str, str, str]]) -> str:
+    body = "".join(f'<trkpt lat="{la}" lon="{lo}"><time>{t}</time></trkpt>\n' for la, lo, t in points)
+    return GPX_HEAD + body + GPX_TAIL
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory) -> Path:
+    """A folder of good and bad inputs (small: 160x120 clips)."""
+    d = tmp_path_factory.mktemp("fuzz")
+    clip = d / "clip.mp4"
+    n = 30
+    render_fpv(clip, np.c_[np.linspace(0, 6, n), np.zeros(n), np.zeros(n)], width=160, height=120, noise_std=2.0)
+    # an MP4 with its index at the front, cut in half (as a copy interrupted half way)
+    subprocess.run(
+        ["ffmpeg", "-v", "error", "-y", "-i", clip, "-c", "copy", "-movflags", "+faststart", d / "fs.mp4"],
+        check=True,
+    )
+    data = (d / "fs.mp4").read_bytes()
+    (d / "half.mp4").write_bytes(data[: len(data) // 2])
+    (d / "noindex.mp4").write_bytes(clip.read_bytes()[: clip.stat().st_size // 2])  # index at the end: lost
+    (d / "text.mp4").write_text("hello\n" * 50)
+    (d / "empty.mp4").write_bytes(b"")
+    (d / "folder").mkdir()
+    os.link(clip, d / "hardlink.mp4")
+    (d / "link.mp4").symlink_to(clip)
+    (d / "motion.csv").write_text(
+        "frame,time,yaw,pitch,roll\n" + "".join(f"{i},{i / 30:.4f},0,0,0\n" for i in range(n))
+    )
+    (d / "short.csv").write_text("frame,time,yaw,pitch,roll\n0,0,0,0,0\n1,0.033,0,0,0\n")
+    (d / "nan.csv").write_text("frame,time,yaw,pitch,roll\n0,0,nan,0,0\n1,0.033,0,0,0\n")
+    (d / "words.csv").write_text("just,some,words\n1,2,3\n")
+    (d / "binary.bin").write_bytes(bytes(range(256)) * 4)
+    t = [f"2026-05-04T08:00:{s:02d}Z" for s in range(5)]
+    (d / "nan.gpx").write_text(_gpx([("nan", "nan", x) for x in t]))
+    (d / "one.gpx").write_text(_gpx([("48.1", "11.5", t[0])]))
+    (d / "far.gpx").write_text(_gpx([("95", "11.5", x) for x in t]))
+    (d / "good.gpx").write_text(_gpx([("48.1", f"11.5{i}", x) for i, x in enumerate(t)]))
+    (d / "notime.gpx").write_text(_gpx([("48.1", "11.5", "")]).replace("<time></time>", ""))
+    (d / "junk.nmea").write_text("$GPRMC,garbage*00\n" * 5)
+    (d / "bad.gps.csv").write_text("time,lat,lon\n2026-05-04T08:00:00Z,abc,11\n")
+    from egovid.dashcam.archive import Archive
+
+    Archive.create(d / "arc").catalogue.close()
+    (d / "notarc").mkdir()
+    (d / "notarc" / "x.txt").write_text("x")
+    run_dir = d / "run"
+    run_dir.mkdir()
+    return d
+
+
+def snapshot(folder: Path) -> dict[str, tuple]:
+    """Every entry under ``folder`` (hidden ones too): kind, size, modification time, content hash."""
+    out: dict[str, tuple] = {}
+    for root, dirs, files in os.walk(folder):
+        for name in dirs:
+            out[os.path.relpath(os.path.join(root, name), folder)] = ("dir",)
+        for name in files:
+            p = Path(root) / name
+            if p.is_symlink():
+                out[str(p.relative_to(folder))] = ("link", os.readlink(p))
+                continue
+            st = p.stat()
+            out[str(p.relative_to(folder))] = (
+                "file",
+                st.st_size,
+                st.st_mtime_ns,
+                hashlib.sha1(p.read_bytes()).hexdigest(),
+            )
+    return out
+
+
+def invoke(args: list[str], capsys) -> tuple[int, str, str]:
+    """Run the CLI in this process; returns (exit status, stdout, stderr)."""
+    from egovid.io import video
+
+    video._TRUNCATED_OK.clear()
+    capsys.readouterr()
+    code = run([str(a) for a in args])
+    gc.collect()  # close what the command left open (an SQLite catalogue's -wal file), as process exit would
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+# (id, arguments relative to the workspace, text the error line must contain)
+CASES: list[tuple[str, str, str]] = [
+    # fpv motion
+    ("motion-missing-video", "fpv motion nosuch.mp4 -o m.csv", "not found"),
+    ("motion-video-is-folder", "fpv motion folder -o m.csv", "is a folder"),
+    ("motion-empty-video", "fpv motion empty.mp4 -o m.csv", "empty"),
+    ("motion-text-as-video", "fpv motion text.mp4 -o m.csv", "not a readable video"),
+    ("motion-truncated-index-first", "fpv motion half.mp4 -o m.csv", "truncated"),
+    ("motion-truncated-no-index", "fpv motion noindex.mp4 -o m.csv", "without its index"),
+    ("motion-out-is-input", "fpv motion clip.mp4 -o clip.mp4", "overwrite the input"),
+    ("motion-out-hardlink-of-input", "fpv motion clip.mp4 -o hardlink.mp4", "overwrite the input"),
+    ("motion-out-symlink-to-input", "fpv motion clip.mp4 -o link.mp4", "overwrite the input"),
+    ("motion-out-no-folder", "fpv motion clip.mp4 -o nodir/m.csv", "does not exist"),
+    ("motion-out-is-folder", "fpv motion clip.mp4 -o folder", "is a folder"),
+    ("motion-tum-no-folder", "fpv motion clip.mp4 -o m.csv --tum nodir/x.tum", "does not exist"),
+    ("motion-plot-no-folder", "fpv motion clip.mp4 -o m.csv --plot nodir/x.png", "does not exist"),
+    ("motion-plot-extension", "fpv motion clip.mp4 -o m.csv --plot m.txt", "extension"),
+    ("motion-out-extension", "fpv motion clip.mp4 -o m.mp4", "extension"),
+    ("motion-tum-equals-out", "fpv motion clip.mp4 -o m.csv --tum m.csv", "also given"),
+    ("motion-focal-nan", "fpv motion clip.mp4 -o m.csv --focal nan", "finite"),
+    ("motion-focal-absurd", "fpv motion clip.mp4 -o m.csv --focal 1", "absurd"),
+    ("motion-hfov-200", "fpv motion clip.mp4 -o m.csv --hfov 200", "out of range"),
+    ("motion-focal-and-hfov", "fpv motion clip.mp4 -o m.csv --focal 300 --hfov 60", "only one"),
+    ("motion-lags-words", "fpv motion clip.mp4 -o m.csv --lags a,b", "integers"),
+    ("motion-features-unknown", "fpv motion clip.mp4 -o m.csv --features surf", "surf"),
+    ("motion-work-width-tiny", "fpv motion clip.mp4 -o m.csv --work-width 10", "--work-width"),
+    ("motion-no-out", "fpv motion clip.mp4", "--out"),
+    ("motion-unknown-option", "fpv motion clip.mp4 -o m.csv --bogus", "--bogus"),
+    # fpv score
+    ("score-nothing", "fpv score", "either"),
+    ("score-video-and-motion", "fpv score clip.mp4 --motion motion.csv", "either"),
+    ("score-json-is-input", "fpv score clip.mp4 --json clip.mp4", "overwrite the input"),
+    ("score-json-is-motion-input", "fpv score --motion motion.csv --json motion.csv", "overwrite the input"),
+    ("score-motion-missing", "fpv score --motion nosuch.csv", "not found"),
+    ("score-motion-nan", "fpv score --motion nan.csv", "NaN"),
+    ("score-motion-not-motion", "fpv score --motion words.csv", "lacks"),
+    ("score-motion-binary", "fpv score --motion binary.bin", "not a text CSV"),
+    ("score-method-unknown", "fpv score clip.mp4 --method best", "best"),
+    ("score-fps-zero", "fpv score --motion motion.csv --fps 0", "--fps"),
+    ("score-fps-inf", "fpv score --motion motion.csv --fps inf", "finite"),
+    ("score-d-over-f-negative", "fpv score --motion motion.csv --d-over-f -1", "--d-over-f"),
+    ("score-mar-zero", "fpv score --motion motion.csv --mar 0", "--mar"),
+    ("score-bias-nan", "fpv score --motion motion.csv --bias nan", "finite"),
+    ("score-size-words", "fpv score --motion motion.csv --size big", "WIDTHxHEIGHT"),
+    ("score-plot-no-folder", "fpv score --motion motion.csv --plot nodir/p.png", "does not exist"),
+    ("score-sve-variant", "fpv score --motion motion.csv --sve-variant other", "other"),
+    ("score-truncated", "fpv score half.mp4", "truncated"),
+    # fpv stabilize
+    ("stabilize-out-txt", "fpv stabilize clip.mp4 -o out.txt", "extension"),
+    ("stabilize-out-is-input", "fpv stabilize clip.mp4 -o clip.mp4", "overwrite the input"),
+    ("stabilize-strength-2", "fpv stabilize clip.mp4 -o o.mp4 --strength 2", "strength"),
+    ("stabilize-strength-nan", "fpv stabilize clip.mp4 -o o.mp4 --strength nan", "finite"),
+    ("stabilize-borders-unknown", "fpv stabilize clip.mp4 -o o.mp4 --borders wavy", "wavy"),
+    ("stabilize-method-unknown", "fpv stabilize clip.mp4 -o o.mp4 --method best", "best"),
+    ("stabilize-save-motion-no-folder", "fpv stabilize clip.mp4 -o o.mp4 --save-motion nodir/pre", "does not exist"),
+    ("stabilize-report-no-folder", "fpv stabilize clip.mp4 -o o.mp4 --report nodir/r.html", "does not exist"),
+    ("stabilize-json-extension", "fpv stabilize clip.mp4 -o o.mp4 --json r.txt", "extension"),
+    ("stabilize-motion-wrong-length", "fpv stabilize clip.mp4 -o o.mp4 --motion short.csv", "frames"),
+    ("stabilize-crf-99", "fpv stabilize clip.mp4 -o o.mp4 --crf 99", "--crf"),
+    ("stabilize-anchor-zero", "fpv stabilize clip.mp4 -o o.mp4 --anchor-threshold 0", "--anchor-threshold"),
+    ("stabilize-truncated", "fpv stabilize half.mp4 -o o.mp4", "truncated"),
+    ("stabilize-report-is-json", "fpv stabilize clip.mp4 -o o.mp4 --report r.html --json r.html", "also given"),
+    # synth fpv
+    ("synth-fpv-yaw-nan", "synth fpv o.mp4 --yaw-amp nan", "finite"),
+    ("synth-fpv-yaw-huge", "synth fpv o.mp4 --yaw-amp 1e9", "out of range"),
+    ("synth-fpv-period-inf", "synth fpv o.mp4 --period inf", "finite"),
+    ("synth-fpv-frames-1", "synth fpv o.mp4 --frames 1", "--frames"),
+    ("synth-fpv-size-odd", "synth fpv o.mp4 --size 101x51", "not usable"),
+    ("synth-fpv-size-words", "synth fpv o.mp4 --size huge", "WIDTHxHEIGHT"),
+    ("synth-fpv-fps-zero", "synth fpv o.mp4 --fps 0", "--fps"),
+    ("synth-fpv-noise-negative", "synth fpv o.mp4 --noise -1", "--noise"),
+    ("synth-fpv-motion-unknown", "synth fpv o.mp4 --motion dance", "dance"),
+    ("synth-fpv-scene-unknown", "synth fpv o.mp4 --scene mars", "mars"),
+    ("synth-fpv-out-txt", "synth fpv o.txt", "extension"),
+    ("synth-fpv-out-no-folder", "synth fpv nodir/o.mp4", "does not exist"),
+    ("synth-fpv-out-is-folder", "synth fpv folder", "is a folder"),
+    ("synth-fpv-hfov-zero", "synth fpv o.mp4 --hfov 0", "out of range"),
+    # synth drive
+    ("synth-drive-gps-format", "synth drive o.mp4 --gps foo", "foo"),
+    ("synth-drive-light", "synth drive o.mp4 --light purple", "purple"),
+    ("synth-drive-route", "synth drive o.mp4 --route moon", "moon"),
+    ("synth-drive-stop-nan", "synth drive o.mp4 --stop nan:3", "finite"),
+    ("synth-drive-stop-words", "synth drive o.mp4 --stop here", "DISTANCE:SECONDS"),
+    ("synth-drive-lane-change", "synth drive o.mp4 --lane-change 5", "A:B"),
+    ("synth-drive-start", "synth drive o.mp4 --start yesterday", "ISO 8601"),
+    ("synth-drive-cruise", "synth drive o.mp4 --cruise 100", "--cruise"),
+    ("synth-drive-fps-nan", "synth drive o.mp4 --fps nan", "--fps"),
+    ("synth-drive-from-negative", "synth drive o.mp4 --from -5", "--from"),
+    ("synth-drive-lane-offset", "synth drive o.mp4 --lane-offset 1e20", "--lane-offset"),
+    ("synth-drive-out-txt", "synth drive o.txt", "extension"),
+    # dashcam
+    ("dashcam-ingest-not-archive", "dashcam ingest notarc clip.mp4 --gps good.gpx", "not an egovid archive"),
+    ("dashcam-ingest-gps-offset-nan", "dashcam ingest arc clip.mp4 --gps good.gpx --gps-offset nan", "finite"),
+    ("dashcam-ingest-q-range", "dashcam ingest arc clip.mp4 --gps good.gpx --q 99", "--q"),
+    ("dashcam-ingest-start-words", "dashcam ingest arc clip.mp4 --gps good.gpx --start noon", "ISO 8601"),
+    ("dashcam-ingest-gps-nan", "dashcam ingest arc clip.mp4 --gps nan.gpx", "0 valid GPS fix"),
+    ("dashcam-ingest-gps-one-fix", "dashcam ingest arc clip.mp4 --gps one.gpx", "at least 2"),
+    ("dashcam-ingest-gps-out-of-range", "dashcam ingest arc clip.mp4 --gps far.gpx", "out of range"),
+    ("dashcam-ingest-gps-no-times", "dashcam ingest arc clip.mp4 --gps notime.gpx", "valid GPS fix"),
+    ("dashcam-ingest-gps-nmea-junk", "dashcam ingest arc clip.mp4 --gps junk.nmea", "NMEA"),
+    ("dashcam-ingest-gps-csv-words", "dashcam ingest arc clip.mp4 --gps bad.gps.csv", "not a GPS fix"),
+    ("dashcam-ingest-gps-folder", "dashcam ingest arc clip.mp4 --gps folder", "folder"),
+    ("dashcam-ingest-gps-binary", "dashcam ingest arc clip.mp4 --gps binary.bin", "binary"),
+    ("dashcam-ingest-gps-missing", "dashcam ingest arc clip.mp4 --gps nosuch.gpx", "not found"),
+    ("dashcam-ingest-gps-offset-huge", "dashcam ingest arc clip.mp4 --gps good.gpx --gps-offset 1e20", "--gps-offset"),
+    ("dashcam-ingest-video-truncated", "dashcam ingest arc half.mp4 --gps good.gpx", "truncated"),
+    ("dashcam-ingest-video-text", "dashcam ingest arc text.mp4 --gps good.gpx", "not a readable video"),
+    ("dashcam-ingest-video-missing", "dashcam ingest arc nosuch.mp4 --gps good.gpx", "not found"),
+    ("dashcam-extract-start-inf", "dashcam extract arc d1 -o x.mkv --start inf", "finite"),
+    ("dashcam-extract-unknown-drive", "dashcam extract arc nosuch -o x.mkv", "nosuch"),
+    ("dashcam-show-unknown-drive", "dashcam show arc nosuch", "nosuch"),
+    ("dashcam-list-not-archive", "dashcam list notarc", "not an egovid archive"),
+    ("dashcam-list-missing", "dashcam list nosuch", "not an egovid archive"),
+    ("dashcam-gc-not-archive", "dashcam gc notarc", "not an egovid archive"),
+    ("dashcam-init-not-empty", "dashcam init notarc", "not empty"),
+    ("dashcam-init-existing-archive", "dashcam init arc", "already"),
+    ("dashcam-unknown-command", "dashcam frobnicate arc", "frobnicate"),
+    # voeval
+    ("voeval-run-size", "voeval run --out r1 --size big", "WIDTHxHEIGHT"),
+    ("voeval-run-levels", "voeval run --out r1 --levels lossless,crf99", "crf99"),
+    ("voeval-run-frames", "voeval run --out r1 --frames 5", "--frames"),
+    ("voeval-run-out-is-file", "voeval run --out clip.mp4", "is a file"),
+    ("voeval-run-out-no-parent-writable", "voeval run --out motion.csv/sub", "not a folder"),
+    ("voeval-run-workers", "voeval run --out r1 --workers 0", "--workers"),
+    ("voeval-report-missing", "voeval report nosuch", "no results"),
+    ("voeval-report-file", "voeval report clip.mp4", "no results"),
+    # demo and the top level
+    ("demo-out-is-file", "demo --out clip.mp4", "is a file"),
+    ("top-unknown-command", "stabilise clip.mp4", "stabilise"),
+]
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
+def test_bad_input_gets_one_error_and_changes_nothing(ws, case, capsys, monkeypatch):
+    _, args, needle = case
+    monkeypatch.chdir(ws)
+    before = snapshot(ws)
+    code, out, err = invoke(args.split(), capsys)
+    lines = [ln for ln in err.splitlines() if ln.startswith("error:")]
+    assert code == 2, f"exit {code}\nstdout: {out}\nstderr: {err}"
+    assert "Traceback" not in err + out
+    assert len(lines) == 1, err
+    assert needle.lower() in lines[0].lower(), lines[0]
+    assert snapshot(ws) == before, "files changed"
+
+
+def test_the_table_is_big_enough():
+    commands = {c[1].split()[0] for c in CASES}
+    assert len(CASES) >= 60 and {"fpv", "synth", "dashcam", "voeval", "demo"} <= commands
+
+
+SUBPROCESS_SAMPLE = [
+    "motion-out-is-input",
+    "motion-truncated-index-first",
+    "synth-fpv-yaw-nan",
+    "synth-drive-gps-format",
+    "dashcam-extract-start-inf",
+    "stabilize-crf-99",
+]
+
+
+@pytest.mark.parametrize("name", SUBPROCESS_SAMPLE)
+def test_bad_input_in_a_real_process(ws, name, tmp_path):
+    """The same cases through the installed entry point (python -m egovid), in a copy of the
+    workspace so the shared one is not touched."""
+    _, args, needle = next(c for c in CASES if c[0] == name)
+    work = tmp_path / "ws"
+    shutil.copytree(ws, work, symlinks=True)
+    before = snapshot(work)
+    r = run_cli(*args.split(), cwd=work)
+    assert_one_error(r, "")
+    assert needle.lower() in r.stderr.lower()
+    assert snapshot(work) == before

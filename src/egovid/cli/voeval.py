@@ -37,6 +37,11 @@ def run(
     synthetic: bool = typer.Option(
         True, help="Include the synthetic factor scenes (--no-synthetic: real sequences only)."
     ),
+    scenes: str = typer.Option(
+        None,
+        help="Synthetic scenes, comma-separated (default all: orbit-ideal, orbit-fog, orbit-unseen, orbit-sensor, "
+        "pano-ideal, pano-motion).",
+    ),
     real_factors: str = typer.Option(
         "noise,blur,illumination", help="Image-level factors applied to the frames of real sequences."
     ),
@@ -93,7 +98,7 @@ def run(
         width=w,
         height=h,
         levels=_names(levels),
-        scenes=list(SCENES) if synthetic else [],
+        scenes=(_names(scenes) if scenes is not None else list(SCENES)) if synthetic else [],
         sequences=list(sequence),
         real_factors=_names(real_factors),
         seeds=list(parse_ints(seeds, "--seeds")),

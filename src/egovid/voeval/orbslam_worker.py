@@ -52,8 +52,9 @@ def main() -> None:
     fx, fy, cx, cy, width, height, fps = sys.argv[4:11]
     with tempfile.TemporaryDirectory() as tmp:
         settings = Path(tmp) / "settings.yaml"
-        # ORB-SLAM3's own settings: 1000 features up to EuRoC's 752x480, 2000 for KITTI-size frames.
-        features = 1000 if int(width) * int(height) <= 752 * 480 else 2000
+        # 1500 features up to EuRoC's 752x480 (ORB-SLAM3's own EuRoC/TUM settings use 1000, which
+        # did not initialise on the 320x240 orbit), 2000 for KITTI-size frames as ORB-SLAM3 does.
+        features = 1500 if int(width) * int(height) <= 752 * 480 else 2000
         settings.write_text(
             SETTINGS.format(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, fps=fps, features=features)
         )

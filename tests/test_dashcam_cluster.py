@@ -10,6 +10,7 @@ import threading
 
 import numpy as np
 import pytest
+from distributed.diagnostics.plugin import WorkerPlugin
 
 from egovid.dashcam import codec
 from egovid.dashcam.ingest import DriveInput, IngestOptions
@@ -41,13 +42,26 @@ def roads(tmp_path_factory):
     return d
 
 
+class SetEnv(WorkerPlugin):
+    """A Dask worker plugin that sets environment variables in every worker, present and future
+    (a worker restarted after a kill too)."""
+
+    name = "egovid-test-env"
+
+    def __init__(self, env: dict) -> None:
+        self.env = env
+
+    def setup(self, worker) -> None:
+        os.environ.update(self.env)
+
+
 def _workers_see(address: str, env: dict) -> None:
     """Give the cluster's workers the S3 variables (they were started before the S3 server; real
     workers get them from where they run)."""
     from distributed import Client
 
     with Client(address, timeout=60) as c:
-        c.run(os.environ.update, env)
+        c.register_plugin(SetEnv(env))
 
 
 def _assert_bit_exact(root, env, tmp_path) -> None:

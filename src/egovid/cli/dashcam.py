@@ -315,7 +315,7 @@ def extract(
     from egovid.errors import EgovidError
 
     ar = _open(archive)
-    check_output(out)
+    check_output(out, exts=".mkv .mp4")
     d = ar.drive_or_fail(drive)
     f0 = round((start or 0.0) * d.fps)
     f1 = d.frames if duration is None else min(d.frames, f0 + max(1, round(duration * d.fps)))
@@ -647,3 +647,45 @@ def unlock_cmd(
 ) -> None:
     """Let `forget` remove drives again."""
     _set_lock(archive, drives, False, None)
+
+
+@app.command("check")
+def check(
+    archive: Path = typer.Argument(..., help="Archive folder."),
+    repair: bool = typer.Option(
+        False,
+        "--repair",
+        help="Rebuild what can be rebuilt: restore a damaged or deleted catalogue from its last backup (or "
+        "salvage what SQLite can read), rebuild the spatial index, delete temporary files of interrupted "
+        "ingests. Bitstreams are never changed.",
+    ),
+    deep: bool = typer.Option(False, "--deep", help="Also decode every drive and compare with the encoder's digests."),
+) -> None:
+    """Verify an archive: its catalogue, every bitstream (present, SHA-256 intact), every drive's
+    segments and reference chains (no loops, no missing drives).
+
+    Prints what it found; exits with status 2 when something cannot be read back.
+    """
+    from egovid.cli.validate import input_folder
+    from egovid.dashcam.integrity import check_archive
+    from egovid.errors import EgovidError
+
+    input_folder(archive, "archive folder")
+    with staged_progress() as cb:
+        rep = check_archive(archive, repair=repair, deep=deep, progress=cb)
+    for f in rep.findings:
+        mark = "repaired" if f.repaired else f.severity
+        console.print(f"{mark:>8}  {f.problem}" + (f" ({f.fix})" if f.fix else ""), highlight=False)
+    mib = rep.blob_bytes / 2**20
+    decoded = f", {rep.decoded_frames} frames decoded and compared" if deep else ""
+    console.print(
+        f"{rep.drives} drive(s), {rep.segments} segment(s), {rep.blobs} bitstream(s) ({mib:.1f} MiB) verified{decoded}"
+    )
+    if rep.errors:
+        fix = (
+            "what --repair could not rebuild must come from a backup of the archive, or its drives re-ingested"
+            if repair
+            else f"run `egovid dashcam check {archive} --repair`"
+        )
+        raise EgovidError(f"archive {archive} has {len(rep.errors)} problem(s) (listed above)", fix)
+    console.print(f"archive {archive} is sound")

@@ -267,6 +267,9 @@ def extract_video(
             f"frames {f0}-{f1 - 1} are not in drive {drive.name} (frames 0-{drive.frames - 1})",
             "choose a range inside the drive (see `egovid dashcam show`)",
         )
+    from egovid.dashcam.integrity import check_chain
+
+    check_chain(source, drive.id)
     codec_name, options = ("ffv1", None) if ext == ".mkv" else ("libx264", {"qp": "0", "preset": "ultrafast"})
     if crf is not None and ext == ".mp4":
         options = {"crf": str(crf), "preset": "veryfast"}

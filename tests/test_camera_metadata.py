@@ -62,3 +62,31 @@ def test_no_telemetry_is_empty_not_an_error(handheld_clip, tmp_path):
     assert tel.lens_mode is None and tel.electronically_stabilized is None
     with pytest.raises(EgovidError, match="not found"):
         read_camera_telemetry(tmp_path / "missing.mp4")
+
+
+def test_intrinsics_resolution_order(karma_clip, handheld_clip, tmp_path):
+    import math
+    import shutil
+    import subprocess
+
+    from egovid.io.camera import resolve_camera
+
+    # GoPro lens mode: Medium, 94.4° published across 854 px, equidistant fisheye.
+    cam = resolve_camera(karma_clip)
+    assert cam.source == "lens-mode" and "Medium" in cam.detail
+    assert cam.intrinsics.focal == pytest.approx(427.0 / math.radians(47.2), rel=1e-6)
+    # Flags win over the file.
+    assert resolve_camera(karma_clip, focal=500.0).source == "flag"
+    assert resolve_camera(karma_clip, hfov=90.0).intrinsics.focal == pytest.approx(427.0, rel=1e-6)
+    # A 35 mm-equivalent focal length (as phones write it), on the diagonal of the picture.
+    phone = tmp_path / "phone.mp4"
+    shutil.copy(handheld_clip, phone)
+    subprocess.run(
+        ["exiftool", "-q", "-overwrite_original", "-XMP-exif:FocalLengthIn35mmFormat=26", str(phone)], check=True
+    )
+    cam = resolve_camera(phone)
+    assert cam.source == "35mm-equivalent"
+    assert cam.intrinsics.focal == pytest.approx(26.0 * math.hypot(1920, 1080) / math.hypot(36, 24), rel=1e-6)
+    # Nothing in the file: the default camera, scaled by the long side.
+    cam = resolve_camera(handheld_clip)
+    assert cam.source == "default" and cam.intrinsics.focal == pytest.approx(830.0)

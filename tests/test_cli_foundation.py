@@ -38,6 +38,15 @@ def _no_frames(path):
     c.close()
 
 
+def test_motion_of_one_frame_is_one_identity_row(tmp_path):
+    v = tmp_path / "in.mp4"
+    _one_frame(v)
+    r = run_cli("fpv", "motion", v, "-o", tmp_path / "m.csv")
+    assert r.returncode == 0, r.stderr
+    m = read_motion_csv(tmp_path / "m.csv")
+    assert len(m) == 1 and np.allclose(m.euler(), 0.0)
+
+
 @pytest.mark.parametrize(
     "make,extra,needle",
     [
@@ -45,7 +54,6 @@ def _no_frames(path):
         (lambda p: p.write_text("hello\n" * 50), (), "not a readable video"),
         (lambda p: p.write_bytes(b""), (), "empty"),
         (_no_frames, (), "no video stream|no frames"),
-        (_one_frame, (), "at least 2"),
         (_one_frame, ("--focal", "1"), "absurd"),
         (_one_frame, ("--hfov", "200"), "out of range"),
     ],

@@ -26,10 +26,23 @@ def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
     with av.open(str(out)) as c:
         assert len(c.streams.audio) == 1
     s = json.loads((tmp_path / "r.json").read_text())
-    assert s["ve_after"] > s["ve_before"] and s["itf_after_db"] > s["itf_before_db"]
+    mb, ma = s["measured"]["before"], s["measured"]["after"]
+    assert ma["ve"] > mb["ve"] and ma["itf_db"] > mb["itf_db"] and ma["ve2d"] > mb["ve2d"]
+    assert s["planned"]["after"]["ve"] > s["planned"]["before"]["ve"]
+    assert 1.0 <= s["zoom"]["mean"] <= s["zoom"]["max"] <= 1.10 + 1e-9
     html = (tmp_path / "r.html").read_text()
-    assert "data:image/png;base64," in html and "Masked ITF" in html
-
+    assert "data:image/png;base64," in html and "ITF" in html and "input | output" in html
+    # Same input, same options: the same JSON (plan, path and encoding are deterministic; timings
+    # are not in it). Given the motion and without re-measuring, so that the motion estimator's
+    # own determinism is not what is tested here.
+    assert run_cli("fpv", "motion", src, "-o", tmp_path / "m.csv").returncode == 0
+    runs = []
+    for k in range(2):
+        args = ("-o", tmp_path / f"d{k}.mp4", "--motion", tmp_path / "m.csv", "--json", tmp_path / f"d{k}.json")
+        r = run_cli("fpv", "stabilize", src, *args, "--no-measure")
+        assert r.returncode == 0, r.stderr
+        runs.append(json.loads((tmp_path / f"d{k}.json").read_text()))
+    assert {**runs[0], "output": None} == {**runs[1], "output": None}
 
 def _add_audio(video, dst):
     frames = list(iter_frames(video))

@@ -99,11 +99,15 @@ def test_a_separate_log_needs_a_checked_clock():
     # No creation_time: the file name's local time with --tz-offset.
     c = resolve_clock(60.0, track=log, file_time=t0 + 900 - 5.5 * 3600, tz_offset_h=-5.5)
     assert c.start_utc == t0 + 900 and c.source.startswith("file name")
-    # A log as long as the video is its own: a wrong camera clock is reported, not silently replaced.
+    # A wrong camera clock is never replaced silently, not even by the first fix of a log as long as
+    # the video; a video with no clock at all takes it.
     own = _track(t0, 60.0)
-    c = resolve_clock(60.0, track=own, creation_time=t0 - 3 * 86400)
-    assert c.start_utc == t0 and c.source == "GPS log start"
-    assert any("-72.00 h off" in n for n in c.notes)
+    with pytest.raises(EgovidError, match="covers 0% of the video"):
+        resolve_clock(60.0, track=own, creation_time=t0 - 3 * 86400)
+    c = resolve_clock(60.0, track=own)
+    assert c.start_utc == t0 and c.source == "GPS log start" and "no clock" in c.notes[0]
+    with pytest.raises(EgovidError, match="--start"):
+        resolve_clock(60.0, track=log)
     with pytest.raises(EgovidError, match="--gps"):
         resolve_clock(60.0)
 
@@ -150,3 +154,17 @@ def test_nmea_in_a_text_track(tmp_path: Path):
     assert e.dropped == {"checksum": 4}
     c = resolve_clock(5.0, embedded=e)
     assert c.start_utc == pytest.approx(utc(2024, 5, 4, 8, 0, 9, 500000), abs=0.01)
+
+
+def test_a_camera_clock_set_to_local_time_is_reported_not_used(karma_clip, tmp_path):
+    from egovid.dashcam.sources import ClockOptions, examine
+
+    exiftool = shutil.which("exiftool")
+    if exiftool is None:
+        pytest.skip("no exiftool (make test installs it)")
+    shifted = tmp_path / "karma-local-time.mp4"  # creation_time in Pacific Daylight Time, tagged UTC
+    subprocess.run([exiftool, "-q", "-QuickTime:CreateDate=2017:04:17 12:27:57", "-o", shifted, karma_clip], check=True)
+    src = examine(shifted, None, ClockOptions())
+    assert KARMA_FIRST_FRAME[0] <= src.clock.start_utc <= KARMA_FIRST_FRAME[1]
+    assert any("-7.00 h off GPS time (time zone UTC-7?)" in n for n in src.clock.notes)
+    assert src.gps_source.startswith("embedded: ExifTool") and src.info.width == 854

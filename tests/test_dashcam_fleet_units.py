@@ -75,36 +75,44 @@ def test_folders_expand_to_their_videos(tmp_path):
     assert [p.relative_to(tmp_path).as_posix() for p in got] == ["Movie/a.mp4", "Movie/b.MP4", "RO/c.mov"]
 
 
-def _seg(i, drive, f0, f1, ref=None, frames=None, size=100):
-    return SegmentRef(i, drive, f0, f1, f"blob{i}", size, ref, None if frames is None else np.asarray(frames))
+def _seg(i, drive, f0, f1, ref=None, frames=None, size=100, refresh=0):
+    runs = -(-(f1 - f0) // refresh) if refresh else 1
+    refmap = None if frames is None else np.asarray(frames)
+    return SegmentRef(
+        i, drive, f0, f1, f"blob{i}", size, ref, refmap, refresh, (size // runs,) * runs if refresh else ()
+    )
 
 
 def test_forgetting_a_baseline_keeps_exactly_the_frames_its_dependents_need():
-    # Drive 1 (root) has three segments; drive 2 refers to frames 40-60 of drive 1 (its segments
-    # 11 and 12); drive 3 refers to drive 2's second segment, which refers to drive 1's segment 13.
+    # Drive 1 (root): segments 11 (frames 0-49, runs of 10 frames), 12, 13 and 14 (700 bytes).
+    # Drive 2 refers to frames 40-59 of drive 1; drive 3 to frames 25-34 of drive 2's second
+    # segment, which refers to frame 120 of drive 1.
     segs = [
-        _seg(11, 1, 0, 50), _seg(12, 1, 50, 100), _seg(13, 1, 100, 150), _seg(14, 1, 150, 200, size=700),
+        _seg(11, 1, 0, 50, size=500, refresh=10), _seg(12, 1, 50, 100), _seg(13, 1, 100, 150),
+        _seg(14, 1, 150, 200, size=700),
         _seg(21, 2, 0, 20, ref=1, frames=range(40, 60)), _seg(22, 2, 20, 40, ref=1, frames=[120] * 20),
         _seg(31, 3, 0, 10, ref=2, frames=range(25, 35)),
     ]  # fmt: skip
     plan = plan_forget(segs, live_drives=[2, 3], forgotten=[1])
-    assert plan.delete_segments == [14] and plan.bytes_freed == 700 and plan.delete_blobs == ["blob14"]
+    # Segment 14 goes; of segment 11 only its last run (frames 40-49) is needed: the rest is trimmed.
+    assert plan.delete_segments == [14] and plan.trim_segments == {11: [(4, 5)]}
+    assert plan.bytes_freed == 700 + 4 * 100 and plan.delete_blobs == ["blob11", "blob14"]
     assert plan.keep_as_reference == {1: [11, 12, 13]} and plan.needed_by == {1: [2, 3]}
     assert plan.purge_drives == []
     # Forget drive 2 as well: drive 3 still needs 22 and, through it, 13; the rest goes.
     plan = plan_forget(segs, live_drives=[3], forgotten=[1, 2])
-    assert sorted(plan.delete_segments) == [11, 12, 14, 21]
-    assert plan.keep_as_reference == {1: [13], 2: [22]}
+    assert sorted(plan.delete_segments) == [11, 12, 14, 21] and plan.trim_segments == {}
+    assert plan.keep_as_reference == {1: [13], 2: [22]} and plan.needed_by == {1: [3], 2: [3]}
     # Nothing live: everything goes, both drives are purged.
     plan = plan_forget(segs, live_drives=[], forgotten=[1, 2, 3])
-    assert plan.purge_drives == [1, 2, 3] and plan.bytes_freed == 1300
+    assert plan.purge_drives == [1, 2, 3] and plan.bytes_freed == 1700
 
 
 def test_policies_pick_old_unlocked_drives():
     drives = [DriveAge(1, 100.0), DriveAge(2, 200.0, locked=True), DriveAge(3, 300.0), DriveAge(4, 400.0)]
     assert older_than(drives, 350.0) == [1, 3]
-    segs = [_seg(1, 1, 0, 10, size=500), _seg(2, 2, 0, 10, size=500), _seg(3, 3, 0, 10, ref=1, frames=[1, 2], size=300),
-            _seg(4, 4, 0, 10, size=200)]  # fmt: skip
+    segs = [_seg(1, 1, 0, 10, size=500), _seg(2, 2, 0, 10, size=500), _seg(3, 3, 0, 10, ref=1, frames=[1] * 10,
+            size=300), _seg(4, 4, 0, 10, size=200)]  # fmt: skip
     # 1500 bytes, budget 900: forgetting drive 1 frees nothing (drive 3 needs it), the locked
     # drive 2 is skipped, forgetting 3 frees 300 + drive 1's 500 -> 700 bytes left.
     chosen, plan = over_budget(drives, segs, [], 900)

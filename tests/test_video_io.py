@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from egovid.errors import EgovidError
-from egovid.io.video import VideoWriter, count_frames, iter_frames, probe, read_frames
+from egovid.io.video import ColourTags, VideoWriter, count_frames, iter_frames, probe, read_frames
 
 
 def _pattern(i: int, w: int = 64, h: int = 48) -> np.ndarray:
@@ -134,3 +134,73 @@ def test_bad_files_give_one_clear_error(tmp_path):
         list(iter_frames(tmp_path / "trunc.mp4"))
     with pytest.raises(EgovidError, match="folder"):
         probe(tmp_path)
+
+
+def _packets(path, kind: str, handler: str | None = None) -> list[bytes]:
+    with av.open(str(path)) as c:
+        streams = [
+            s
+            for s in c.streams
+            if s.type == kind and (handler is None or s.metadata.get("handler_name", "").strip() == handler)
+        ]
+        assert len(streams) == 1, [s.metadata for s in c.streams]
+        return [bytes(p) for p in c.demux(streams[0]) if p.size]
+
+
+def test_writer_keeps_what_the_gopro_wrote(karma_clip, tmp_path):
+    """Colour tags (bt709, full range), creation time, timecode, audio and the GPMF telemetry
+    track survive a re-encode; the telemetry bit for bit and readable by telemetry-parser."""
+    src = probe(karma_clip)
+    assert src.colour == ColourTags("bt709", "bt709", "bt709", "pc")
+    assert src.timecode == "19:26:48:04" and src.audio_streams == 1
+    assert src.data_streams == ("GoPro TCD", "GoPro MET", "GoPro SOS")
+    out = tmp_path / "kept.mp4"
+    planes = [f.image for f in iter_frames(karma_clip, i420=True, max_frames=40)]
+    with VideoWriter(out, src.width, src.height, src.fps, keep_from=karma_clip) as w:
+        for k, img in enumerate(planes):
+            w.write_i420(img, k / src.fps)
+    assert any("GoPro SOS" in d for d in w.dropped)  # GoPro's recovery track: MP4 cannot carry it
+    got = probe(out)
+    assert got.colour == src.colour and got.creation_time == src.creation_time
+    assert got.timecode == src.timecode and got.audio_streams == 1
+    assert _packets(out, "data", "GoPro MET") == _packets(karma_clip, "data", "GoPro MET")
+    assert len(_packets(out, "audio")) == len(_packets(karma_clip, "audio"))
+    # Full range kept: the luma comes back at the same level (no 16-235 squeeze, no 2-level shift).
+    back = [f.image for f in iter_frames(out, i420=True)]
+    h = src.height
+    shift = np.mean([b[:h].astype(float).mean() - a[:h].mean() for a, b in zip(planes, back, strict=True)])
+    assert abs(shift) < 0.3, shift
+    import telemetry_parser
+
+    gyro = [s["gyro"] for s in telemetry_parser.Parser(str(out)).normalized_imu()]
+    assert gyro == [s["gyro"] for s in telemetry_parser.Parser(str(karma_clip)).normalized_imu()]
+
+
+def test_writer_sets_the_rotation_flag_and_stores_coded_frames(tmp_path):
+    frames = [_pattern(i) for i in range(4)]  # display orientation: 64x48
+    out = tmp_path / "rot.mp4"
+    with VideoWriter(out, 64, 48, 30, rotation=90, crf=0) as w:
+        for f in frames:
+            w.write(f)
+    info = probe(out)
+    assert info.rotation == 90 and (info.width, info.height) == (64, 48)
+    with av.open(str(out)) as c:
+        coded = next(c.decode(video=0))
+        assert (coded.width, coded.height) == (48, 64)  # stored turned back, as a camera does
+    assert np.abs(read_frames(out)[0].astype(int) - np.stack(frames)).mean() < 3
+
+
+@pytest.mark.parametrize(
+    ("colour", "grey_y", "white_y"),
+    [(ColourTags(), 126, 235), (ColourTags(matrix="bt709", range="pc"), 128, 255), (ColourTags(range="tv"), 126, 235)],
+)
+def test_writer_converts_bgr_with_the_tagged_matrix_and_range(tmp_path, colour, grey_y, white_y):
+    img = np.full((48, 64, 3), 128, np.uint8)
+    img[:, 32:] = 255
+    out = tmp_path / "c.mkv"
+    with VideoWriter(out, 64, 48, 30, codec="ffv1", pix_fmt="yuv420p", colour=colour) as w:
+        w.write(img)
+    y = next(iter_frames(out, i420=True)).image[:48]
+    # By hand: limited range Y = 16 + 219 * v / 255, full range Y = v (grey has no chroma).
+    assert np.all(y[:, :30] == grey_y) and np.all(y[:, 34:] == white_y)
+    assert probe(out).colour.range == colour.range

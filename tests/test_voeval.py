@@ -2,6 +2,7 @@
 scene geometry, factor matrices on hand-made results, and a small grid run end to end."""
 
 import math
+import os
 import sys
 
 import numpy as np
@@ -16,7 +17,7 @@ from egovid.synth.photos import photo
 from egovid.voeval.matrices import factor_matrices
 from egovid.voeval.scenes import orbit_pose
 
-from conftest import run_cli
+from conftest import assert_one_error, run_cli
 
 
 def _motion(n=40):
@@ -89,8 +90,7 @@ def test_orbit_pose_is_eq_21_3():
         np.testing.assert_allclose(R[:, 0], rx / np.linalg.norm(rx), atol=1e-12)
 
 
-def test_factor_matrices_by_hand():
-    vos, crfs = ["a", "b"], ["lossless", "crf30"]
+def _hand_results():
     res = {}
     for vo, bad in (("a", 2.0), ("b", 1.0)):
         for c, extra in (("lossless", 0.0), ("crf30", 1.0)):
@@ -98,8 +98,18 @@ def test_factor_matrices_by_hand():
                 res[(vo, s, c)] = {"pose_error": 1.0 + extra, "oitf": 30.0, "ritf": 20.0}
             for s in ("orbit-fog", "orbit-unseen", "orbit-sensor", "pano-motion"):
                 res[(vo, s, c)] = {"pose_error": 1.0 + extra + bad, "oitf": 30.0 - bad, "ritf": 20.0 - bad}
+    return res
+
+
+def test_factor_matrices_by_hand():
+    from egovid.voeval.layout import Factor
+    from egovid.voeval.scenes import FACTORS
+
+    factors = [Factor("synthetic", f, a, b) for f, (a, b) in FACTORS.items()]
+    vos, crfs = ["a", "b"], ["lossless", "crf30"]
+    res = _hand_results()
     res[("a", "pano-motion", "lossless")] = {"pose_error": 11.0, "oitf": 25.0, "ritf": 25.0}  # OITF = RITF
-    m = factor_matrices(res, vos, crfs)
+    m = factor_matrices(res, vos, crfs, factors)
     pe = m["pose_error"]
     assert pe["difference"][0, 0, 0] == pytest.approx(2.0) and pe["difference"][1, 0, 0] == pytest.approx(1.0)
     # Relative (eq. 22.2): divided by ΔITF = OITF - RITF of the ideal scene (10 dB).
@@ -109,64 +119,133 @@ def test_factor_matrices_by_hand():
     oitf = m["oitf"]
     # OITF: m = ideal; ΔITF of the challenging scene; pano-motion has OITF = RITF: floored, finite.
     assert oitf["difference"][0, 3, 0] == pytest.approx(5.0)
-    assert np.isfinite(oitf["relative"]).all()
+    assert oitf["relative"][0, 3, 0] == pytest.approx(1.0) and np.isfinite(oitf["relative"]).all()
     assert m["pose_error"]["compression"].shape == (2, 4)
 
 
-VO_GT = (
-    "import sys, shutil, pathlib; v = pathlib.Path(sys.argv[1]); "
-    "s = v.name.split('__')[0].removesuffix('.mkv'); "
-    "shutil.copy(v.parent.parent / 'scenes' / (s + '.gt.tum'), sys.argv[2])"
-)
-VO_DRIFT = (
-    "import sys, pathlib, numpy as np; from egovid.io.trajectory import read_tum, write_tum; "
-    "from egovid.geometry import rot_y; v = pathlib.Path(sys.argv[1]); "
-    "s = v.name.split('__')[0].removesuffix('.mkv'); t = read_tum(v.parent.parent / 'scenes' / (s + '.gt.tum')); "
-    "t.R = t.R @ rot_y(0.3 * np.arange(len(t.R))); write_tum(sys.argv[2], t)"
-)
+def test_normalisation_follows_eq_22_2_to_22_4_and_the_old_choice_differs():
+    """|max E| (eq. 22.4) against max|E|, and ΔITF = OITF - RITF (eq. 22.3) against |OITF - RITF|,
+    on a case where no factor hurts (all differences negative) and ΔITF is negative."""
+    from egovid.voeval.layout import Factor
+
+    factors = [Factor("synthetic", "feature", "i", "f"), Factor("synthetic", "sensor", "i", "s")]
+    res = {
+        ("a", "i", "lossless"): {"pose_error": 5.0, "oitf": 30.0, "ritf": 20.0},
+        ("a", "f", "lossless"): {"pose_error": 4.0, "oitf": 31.0, "ritf": 33.0},  # better, ΔITF = -2
+        ("a", "s", "lossless"): {"pose_error": 3.0, "oitf": 32.0, "ritf": 21.0},  # better still
+    }
+    th = factor_matrices(res, ["a"], ["lossless"], factors, norm="thesis")["pose_error"]
+    old = factor_matrices(res, ["a"], ["lossless"], factors, norm="max_abs")["pose_error"]
+    # Pose error: n = the ideal scene (ΔITF 10 dB): E = (-1/10, -2/10); |max E| = 0.1 -> (-1, -2).
+    np.testing.assert_allclose(th["relative"][0, :, 0], [-1.0, -2.0])
+    np.testing.assert_allclose(old["relative"][0, :, 0], [-0.5, -1.0])  # max|E| = 0.2
+    oit = factor_matrices(res, ["a"], ["lossless"], factors, norm="thesis")["oitf"]
+    oit_old = factor_matrices(res, ["a"], ["lossless"], factors, norm="max_abs")["oitf"]
+    # OITF: n = the challenging scene; feature's ΔITF = -2 dB: floored at 0.5 (thesis) or |−2| = 2 (old).
+    assert oit["difference"][0, 0, 0] == pytest.approx(-1.0)
+    assert oit["relative"][0, 0, 0] / oit["relative"][0, 1, 0] == pytest.approx((-1.0 / 0.5) / (-2.0 / 11.0))
+    assert oit_old["relative"][0, 0, 0] / oit_old["relative"][0, 1, 0] == pytest.approx((-1.0 / 2.0) / (-2.0 / 11.0))
+
+
+def test_recommendation_ranks_in_domain_vos_and_calls_ties():
+    from egovid.voeval.recommend import answer, in_domain
+
+    assert not in_domain("egovid", "translating") and in_domain("egovid", "rotating")
+    assert in_domain("colmap", "translating") and in_domain("mycmd", "translating")
+    cells = {}
+    for seed, noise in ((0, 0.0), (1, 0.4)):
+        for vo, pe in (("egovid", 0.1), ("colmap", 1.0), ("monovo", 1.3 + noise), ("orbslam3", 5.0)):
+            cells[(vo, "hard", "lossless", seed)] = {"pose_error": pe}
+    vos = ["egovid", "colmap", "monovo", "orbslam3"]
+    a = answer(cells, vos, [0, 1], "synthetic", "feature", "hard", "lossless", "translating", "pose_error")
+    assert a.out_of_domain == ["egovid"]  # best score, but it cannot work there by design
+    assert a.best == "colmap" and a.margin == pytest.approx(0.5) and a.spread == pytest.approx(0.2)
+    assert not a.tie
+    b = answer(cells, vos, [0, 1], "synthetic", "motion", "hard", "lossless", "rotating", "pose_error")
+    assert b.best == "egovid" and not b.out_of_domain
+    cells[("monovo", "hard", "lossless", 1)]["pose_error"] = 0.2  # monovo: 1.3 then 0.2, colmap 1.0 twice
+    c = answer(cells, vos, [0, 1], "s", "f", "hard", "lossless", "translating", "pose_error")
+    assert c.best == "monovo" and c.tie  # mean 0.75 vs 1.0, but the paired difference swings by ±0.55
+
+
+# Odometers that read the scene's truth (numpy only: they start fast): the truth itself, the truth
+# with a steady drift of 0.3° per frame about y, and the truth from frame 5 on (a late starter).
+FAKE_VO = """
+import pathlib, sys
+import numpy as np
+
+mode, video, out = sys.argv[1], pathlib.Path(sys.argv[2]), sys.argv[3]
+scene = video.name.split("__")[0].removesuffix(".mkv")
+rows = np.loadtxt(video.parents[2] / "scenes" / "s0" / (scene + ".gt.tum"), ndmin=2)
+if mode == "drift":  # q * (rotation of 0.3 k degrees about y), quaternions x y z w
+    h = np.radians(0.3 * np.arange(len(rows))) / 2
+    x, y, z, w = rows[:, 4:8].T
+    c, s = np.cos(h), np.sin(h)
+    rows[:, 4:8] = np.stack([x * c - z * s, y * c + w * s, z * c + x * s, w * c - y * s], axis=1)
+if mode == "late":  # frames 5.. relative to frame 5: q5^-1 * q
+    rows = rows[5:].copy()
+    x0, y0, z0, w0 = -rows[0, 4], -rows[0, 5], -rows[0, 6], rows[0, 7]
+    x, y, z, w = rows[:, 4:8].T
+    rows[:, 4:8] = np.stack([w0 * x + x0 * w + y0 * z - z0 * y, w0 * y - x0 * z + y0 * w + z0 * x,
+                             w0 * z + x0 * y - y0 * x + z0 * w, w0 * w - x0 * x - y0 * y - z0 * z], axis=1)
+np.savetxt(out, rows, fmt="%.9f")
+"""
 
 
 def test_grid_run_with_truth_drift_failure_and_resume(tmp_path):
-    py = sys.executable
+    fake = tmp_path / "fake_vo.py"
+    fake.write_text(FAKE_VO)
+    vo = f"{sys.executable} {fake}"
     args = [
         "voeval",
         "run",
         "--out",
         tmp_path / "run",
         "--vo",
-        "egovid",
+        "ecc",
         "--frames",
         "16",
         "--size",
         "160x120",
         "--levels",
         "lossless,crf30",
+        "--scenes",
+        "orbit-ideal,orbit-fog,pano-ideal,pano-motion",
         "--workers",
         "2",
         "--vo-cmd",
-        f'truth={py} -c "{VO_GT}" {{video}} {{out}}',
+        f"truth={vo} truth {{video}} {{out}}",
         "--vo-cmd",
-        f'drift={py} -c "{VO_DRIFT}" {{video}} {{out}}',
+        f"drift={vo} drift {{video}} {{out}}",
         "--vo-cmd",
         "broken=false {video} {out}",
+        "--vo-cmd",
+        f"late={vo} late {{video}} {{out}}",
     ]
     r = run_cli(*args)
     assert r.returncode == 0, r.stderr
     from egovid.voeval.runner import load_results
 
-    res, vos, scenes, levels = load_results(tmp_path / "run")
-    assert set(vos) == {"egovid", "truth", "drift", "broken"} and len(scenes) == 6 and len(levels) == 2
-    assert len(res) == 4 * 6 * 2
-    for (vo, _s, _l), c in res.items():
+    run = load_results(tmp_path / "run")
+    res = run.cells
+    assert set(run.vos) == {"ecc", "truth", "drift", "broken", "late"}
+    assert len(run.scenes) == 4 and run.levels == ["lossless", "crf30"]
+    assert [f.name for f in run.factors] == ["feature", "motion"]
+    assert len(res) == 5 * 4 * 2
+    for (vo, scene, _l, _seed), c in res.items():
         if vo == "truth":
             assert c["status"] == "ok" and c["pose_error"] < 1e-6
             assert c["oitf"] == pytest.approx(60.0) and c["ritf"] == pytest.approx(60.0)
         if vo == "drift":
             assert c["oitf"] > c["ritf"] + 3.0
         if vo == "broken":
-            assert c["status"] == "failed"  # recorded, not dropped
+            assert c["status"] == "failed" and c["first_pose_frame"] == 16  # recorded, not dropped
+        if vo == "late":  # the truth from frame 5 on, relative to frame 5: an odometer that starts late
+            assert c["status"] == "lost-tracking" and c["first_pose_frame"] == 5 and c["tracked"] == 11
+            if scene.startswith("orbit"):  # a steady turn: anchoring to the truth hides most of the late start
+                assert 0 < c["pose_error_other_anchor"] < 0.8 * c["pose_error"]
     assert (tmp_path / "run" / "report.html").exists() and (tmp_path / "run" / "report.md").exists()
-    r = run_cli(*args)  # resume: nothing left to compute
+    r = run_cli(*args, "--no-report")  # resume: nothing left to compute
     assert r.returncode == 0 and "(0 computed now)" in r.stdout
 
 
@@ -177,6 +256,20 @@ def test_bad_vo_arguments(tmp_path):
     assert r.returncode == 2 and "{video}" in r.stderr
     r = run_cli("voeval", "report", tmp_path / "nothing")
     assert r.returncode == 2 and "no results" in r.stderr
+    # Without --vo every available odometer is asked for (it crashed before): here the run stops at
+    # the bad sequence, after the odometer list was built.
+    r = run_cli("voeval", "run", "--out", tmp_path / "y", "--sequence", "kitti:/nowhere")
+    assert_one_error(r, "does not exist")
+
+
+def test_default_odometers_are_every_available_one():
+    from egovid.voeval.adapters import BUILTIN, orbslam3_available
+    from egovid.voeval.runner import GridConfig
+
+    expected = [n for n in BUILTIN if n != "orbslam3" or orbslam3_available()]
+    assert GridConfig().vos == expected and len(expected) >= 4
+    cfg = GridConfig()
+    assert (cfg.frames, cfg.width, cfg.height) == (300, 640, 480) and len(cfg.levels) == 7
 
 
 @pytest.mark.parametrize("name", ["colmap", "orbslam3"])
@@ -196,3 +289,35 @@ def test_sfm_and_slam_adapters_recover_the_orbit(tmp_path, name):
     R = anchor_to_truth(res.R, res.valid, truth.R)
     err = angle_deg(np.swapaxes(R, 1, 2) @ truth.R)
     assert np.median(err[res.valid]) < (1.0 if name == "colmap" else 3.0)
+
+
+DIE_ONCE = """
+import os, pathlib, shutil, signal, sys
+
+video, out, mark = pathlib.Path(sys.argv[1]), sys.argv[2], pathlib.Path(sys.argv[3])
+pid = os.getppid()  # the shell of subprocess.run(shell=True); above it, the Dask worker process
+while not pathlib.Path(f"/proc/{pid}/comm").read_text().startswith("python"):
+    pid = int(pathlib.Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+if not mark.exists():
+    mark.write_text(str(pid))
+    os.kill(pid, signal.SIGKILL)
+scene = video.name.split("__")[0].removesuffix(".mkv")
+shutil.copy(video.parents[2] / "scenes" / "s0" / (scene + ".gt.tum"), out)
+"""
+
+
+def test_grid_on_a_dask_cluster_retries_the_cell_of_a_killed_worker(dask_scheduler, tmp_path):
+    """The grid on a real scheduler + 2 workers: the odometer kills the worker running its cell
+    the first time; Dask runs the cell again on a live worker and the grid completes."""
+    from egovid.engine import EngineConfig
+    from egovid.voeval.runner import GridConfig, load_results, run_grid
+
+    mark, script = tmp_path / "killed", tmp_path / "die_once.py"
+    script.write_text(DIE_ONCE)
+    cmd = f"dies={sys.executable} {script} {{video}} {{out}} {mark}"
+    cfg = GridConfig(vos=[], commands=[cmd], scenes=["pano-ideal"], frames=12, width=96, height=72, levels=["lossless"])
+    r = run_grid(tmp_path / "run", cfg, EngineConfig(scheduler=dask_scheduler))
+    assert r["computed"] == 1 and mark.exists()  # the first attempt did kill its worker
+    [cell] = load_results(tmp_path / "run").cells.values()
+    assert cell["status"] == "ok" and cell["pose_error"] < 1e-6
+    assert int(mark.read_text()) != os.getpid()  # it was a worker, not this test process

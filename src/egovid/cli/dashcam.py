@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from egovid.cli.common import check_output, console, staged_progress
+from egovid.cli.common import all_or_nothing, check_output, console, err_console, staged_progress
 
 app = typer.Typer(
     help="Route-aware dashcam archive: drives on the same path are compressed against each other.",
@@ -46,56 +46,50 @@ def init(
     """
     from egovid.cli.validate import output_folder
     from egovid.dashcam.catalogue import redact_url
+    from egovid.dashcam.fleetstore import FleetStore
     from egovid.dashcam.store import Archive
     from egovid.dashcam.vpx import self_test
 
     output_folder(archive, what="archive folder")
     ar = Archive.create(archive, db, blobs)
+    FleetStore(ar.catalogue)  # the fleet tables (and PostGIS where the server has it)
     cat = ar.meta["catalogue"]
     where = "SQLite" if cat["backend"] == "sqlite" else f"PostgreSQL {redact_url(cat['url'])}, schema {cat['schema']}"
     console.print(f"archive {archive} created (catalogue: {where}; blobs: {ar.blobs.url}; codec: {self_test()})")
-
-
-VIDEO_EXTENSIONS = (".mp4", ".mov", ".mkv", ".avi", ".ts", ".m4v", ".webm")
-
-
-def _videos(paths: list[Path]) -> list[Path]:
-    """The videos named, folders searched (recursively) for video files."""
-    from egovid.errors import EgovidError
-
-    out: list[Path] = []
-    for p in paths:
-        if p.is_dir():
-            found = sorted(f for f in p.rglob("*") if f.is_file() and f.suffix.lower() in VIDEO_EXTENSIONS)
-            if not found:
-                raise EgovidError(
-                    f"folder {p} holds no videos", f"give videos ({', '.join(VIDEO_EXTENSIONS)}) or folders of them"
-                )
-            out += found
-        elif not p.exists():
-            raise EgovidError(f"video not found: {p}", "check the path")
-        else:
-            out.append(p)
-    return out
 
 
 @app.command("ingest")
 def ingest(
     archive: Path = typer.Argument(..., help="Archive folder (from `egovid dashcam init`)."),
     videos: list[Path] = typer.Argument(
-        ..., help="Dashcam videos, or folders of them (searched for .mp4, .mov, .mkv, .avi, .ts, .m4v, .webm)."
+        ...,
+        help="Dashcam videos, or folders of them (searched recursively): the loop-recording files of one drive "
+        "become one drive (a trip); event and parking files drives of their own kind.",
     ),
     gps: Path = typer.Option(
         None,
         "--gps",
-        help="GPS track of the drive (one video only): GPX, NMEA 0183 or CSV (time,lat,lon,...). Default: the "
-        "file beside each video with the same name and a .gpx, .nmea or .csv extension.",
+        help="GPS log: GPX, NMEA 0183 or CSV (time,lat,lon,...); one log may cover several videos. Default: the "
+        "file beside each video with its name and a .gpx, .nmea or .csv extension, else the GPS the camera "
+        "embedded in the video (GoPro GPMF, Novatek/Viofo, BlackVue, Garmin, DJI, ... via ExifTool; NMEA text "
+        "tracks).",
     ),
-    name: str = typer.Option(None, help="Name of the drive in the archive (one video only; default: its file name)."),
+    name: str = typer.Option(
+        None, help="Name of the drive in the archive (one drive only; default: its first file's name)."
+    ),
     start: str = typer.Option(
-        None, help="UTC start time of the video (ISO 8601) if its metadata lacks it (one video only)."
+        None, help="UTC start time of the video (ISO 8601) when nothing else tells it (one video only)."
+    ),
+    tz_offset: float = typer.Option(
+        None,
+        "--tz-offset",
+        help="Hours the camera clock is ahead of UTC (8 for a camera set to UTC+8), for videos without GPS time "
+        "whose creation_time or file names carry local time.",
     ),
     gps_offset: float = typer.Option(0.0, help="Seconds to add to each video's start to line it up with its GPS."),
+    join: bool = typer.Option(True, help="Join consecutive loop-recording files into one drive (a trip)."),
+    max_gap: float = typer.Option(10.0, "--max-gap", help="Longest gap in seconds between two files of one trip."),
+    lock_events: bool = typer.Option(True, help="Lock event files as they are ingested (see `egovid dashcam lock`)."),
     preset: str = typer.Option(
         None,
         "--preset",
@@ -140,33 +134,33 @@ def ingest(
     """Add drives: split each into per-path sequences, pick older drives of the same path and light,
     align them frame by frame, and store each drive compressed against them.
 
-    Several videos (or folders) are ingested oldest first; drives of different roads at the same
-    time (--workers N, or a Dask cluster with --scheduler), a drive on a road another one of the
-    batch covers after that one is in (so it can use it). Each drive is added in one transaction:
-    a failure or a crash changes nothing for that drive.
+    The time base is GPS time: the camera's own clock (creation_time, file names) counts only where
+    the video holds no GPS time, and only where the GPS log confirms it. Several videos (or
+    folders) are ingested oldest first; drives of different roads at the same time (--workers N,
+    or a Dask cluster with --scheduler), a drive on a road another one of the batch covers after
+    that one is in (so it can use it). Each drive is added in one transaction: a failure or a
+    crash changes nothing for that drive. Files that cannot be used are listed with the reason.
     """
-    import datetime as dt
-
-    from egovid.cli.validate import number
-    from egovid.dashcam.ingest import DriveInput, IngestOptions
+    from egovid.cli import validate
+    from egovid.dashcam.fleet_ingest import drive_input, prepare
+    from egovid.dashcam.ingest import IngestOptions
     from egovid.dashcam.ingest.run import ingest_drive, ingest_many, plan_batch
+    from egovid.dashcam.sources import ClockOptions, plan_ingest
     from egovid.engine import EngineConfig, scheduler_address
     from egovid.errors import EgovidError
 
-    number(gps_offset, "--gps-offset", lo=-7 * 86400, hi=7 * 86400, unit="s")
+    validate.number(gps_offset, "--gps-offset", lo=-7 * 86400, hi=7 * 86400, unit="s")
+    validate.number(tz_offset, "--tz-offset", lo=-14, hi=14, unit="hours")
+    validate.number(max_gap, "--max-gap", lo=0, hi=3600, unit="s")
     ar = _open(archive)
-    files = _videos(videos)
-    if len(files) > 1 and (gps is not None or name is not None or start is not None):
-        raise EgovidError("--gps, --name and --start name one drive", "give one video with them, or leave them out")
-    start_utc = None
-    if start is not None:
-        try:
-            t = dt.datetime.fromisoformat(start.replace("Z", "+00:00"))
-        except ValueError:
-            raise EgovidError(f"--start {start!r} is not an ISO 8601 time", "write e.g. 2026-05-04T08:00:00Z") from None
-        start_utc = (t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp()
-    if json_out is not None:
-        check_output(json_out)
+    start_utc = _utc(start, "--start") if start is not None else None
+    for v in videos:
+        if v.is_dir():
+            validate.input_folder(v, "folder")
+        else:
+            validate.input_file(v, "video")
+    log = validate.gps_input(gps) if gps is not None else None
+    validate.outputs(videos, (json_out, validate.JSON, "--json"))
     opts = IngestOptions.from_preset(
         preset,
         q=q,
@@ -180,15 +174,32 @@ def ingest(
         verify=verify,
     ).check()
     config = EngineConfig(scheduler=scheduler_address(scheduler), workers=workers, retries=2)
-    drives = [DriveInput(f, gps, name, start_utc, gps_offset) for f in files]
+    with staged_progress() as cb:
+        plan = plan_ingest(
+            videos,
+            gps=log,
+            clock=ClockOptions(start_utc, tz_offset, gps_offset),
+            join=join,
+            max_gap=max_gap,
+            on_file=lambda k, n: cb("examine", k, n),
+        )
+        prepared = prepare(ar, plan, name=name, lock_events=lock_events)
+    for path, why in plan.skipped:
+        err_console.print(f"skipped {path}: {why}")
+    if not prepared:
+        raise EgovidError("nothing to ingest: every video was skipped", "see the reasons above")
+    fleet = {p.name: p for p in prepared}
+    drives = [drive_input(p) for p in prepared]
+    skipped = [{"file": str(f), "reason": why} for f, why in plan.skipped]
     if len(drives) == 1 and config.scheduler is None:
         with staged_progress() as cb:
             rep = ingest_drive(ar, drives[0], opts, progress=cb)
-        _print_report(rep)
+        _print_report(rep, fleet.get(rep.name))
         if json_out is not None:
             from egovid.io.files import atomic_write_text
 
-            atomic_write_text(json_out, json.dumps(rep.to_dict(), indent=1, default=str))
+            doc = {**rep.to_dict(), **fleet[rep.name].summary(), "skipped": skipped}
+            atomic_write_text(json_out, json.dumps(doc, indent=1, default=str))
         return
     batch = plan_batch(ar, drives, opts)
     where = f"Dask cluster {config.scheduler}" if config.scheduler else f"{workers} local worker(s)"
@@ -199,7 +210,7 @@ def ingest(
         for res in ingest_many(ar, batch, config):
             if res.report is not None:
                 results.append(res.report)
-                _print_report(res.report)
+                _print_report(res.report, fleet.get(res.report.name))
             else:
                 failed.append(res)
                 console.print(f"[red]drive {res.name!r} not added[/]: {res.error}")
@@ -208,8 +219,9 @@ def ingest(
         from egovid.io.files import atomic_write_text
 
         doc = {
-            "drives": [r.to_dict() for r in results],
+            "drives": [{**r.to_dict(), **fleet[r.name].summary()} for r in results],
             "failed": [{"drive": f.name, "error": f.error} for f in failed],
+            "skipped": skipped,
         }
         atomic_write_text(json_out, json.dumps(doc, indent=1, default=str))
     if failed:
@@ -219,7 +231,8 @@ def ingest(
         )
 
 
-def _print_report(rep) -> None:
+def _print_report(rep, fleet=None) -> None:
+    """An ingest's report on the console (``fleet``: the prepared drive, for its files and clock)."""
     for p in rep.pieces:
         saving = f", saving {100 * p.saving:.1f} % vs standalone" if p.saving is not None else ""
         ref = f" against {p.ref_drive}" if p.ref_drive else " (root: no older drive of this path and light)"
@@ -227,10 +240,13 @@ def _print_report(rep) -> None:
             f"{rep.name} frames {p.frames[0]}-{p.frames[1] - 1}: path {p.path_id}, {p.mode}{ref}, "
             f"{p.bytes / 1024:.0f} KiB, PSNR-Y {p.psnr_y:.2f} dB{saving}"
         )
+    what = fleet.describe() if fleet is not None else ""
     console.print(
-        f"drive {rep.name!r} added: {rep.frames} frames in {rep.seconds:.1f} s ({rep.fps:.1f} fps); "
+        f"drive {rep.name!r} added:{what} {rep.frames} frames in {rep.seconds:.1f} s ({rep.fps:.1f} fps); "
         f"new paths {rep.new_paths or 'none'}, split paths {rep.split_paths or 'none'}"
     )
+    for note in fleet.notes if fleet is not None else ():
+        err_console.print(f"note: {rep.name}: {note}")
 
 
 @app.command("list")
@@ -240,11 +256,14 @@ def list_cmd(archive: Path = typer.Argument(..., help="Archive folder.")) -> Non
 
     from rich.table import Table
 
+    from egovid.dashcam.fleetstore import hidden_drive_ids
+
     ar = _open(archive)
     t = Table(title=str(archive))
     for col in ("id", "drive", "start (UTC)", "frames", "size", "stored", "modes"):
         t.add_column(col)
-    for d in ar.catalogue.drives():
+    hidden = hidden_drive_ids(ar.catalogue)  # kept only for the frames other drives are coded against
+    for d in (d for d in ar.catalogue.drives() if d.id not in hidden):
         segs = ar.catalogue.segments(d.id)
         size = sum(s.bytes for s in segs)
         modes = ", ".join(sorted({s.mode for s in segs}))
@@ -296,7 +315,7 @@ def extract(
     from egovid.errors import EgovidError
 
     ar = _open(archive)
-    check_output(out)
+    check_output(out, exts=".mkv .mp4")
     d = ar.drive_or_fail(drive)
     f0 = round((start or 0.0) * d.fps)
     f1 = d.frames if duration is None else min(d.frames, f0 + max(1, round(duration * d.fps)))
@@ -305,9 +324,10 @@ def extract(
             f"--start {start} s is past the end of drive {d.name} ({d.frames / d.fps:.1f} s)", "choose an earlier start"
         )
     from egovid.dashcam.extract import extract_video
+    from egovid.dashcam.fleetstore import extract_extras
 
     with staged_progress() as cb:
-        extract_video(ar, d, out, progress=lambda k, n: cb("extract", k, n), frames=(f0, f1))
+        extract_video(ar, d, out, progress=lambda k, n: cb("extract", k, n), frames=(f0, f1), **extract_extras(ar, d))
     console.print(f"{d.name}: frames {f0}-{f1 - 1} of {d.frames} → {out}")
 
 
@@ -333,13 +353,28 @@ def gc(
 def report(
     archive: Path = typer.Argument(..., help="Archive folder."),
     json_out: Path = typer.Option(None, "--json", help="Write the report as JSON."),
+    html_out: Path = typer.Option(
+        None, "--html", help="Also draw the drives on a map: one self-contained HTML page (works offline)."
+    ),
+    colour: str = typer.Option("drive", "--colour", help="Map tracks coloured by drive or by saving."),
+    tiles: str = typer.Option(
+        "osm",
+        "--tiles",
+        help="Map background: osm (OpenStreetMap tiles, fetched by the browser only when online), "
+        "none, or an XYZ tile URL with {z}/{x}/{y}.",
+    ),
 ) -> None:
-    """Bits per path and per drive, and the savings of joint coding."""
+    """Bits per path and per drive, and the savings of joint coding; with --html, a map of the
+    drives (tracks coloured by drive or by saving, click one for its details)."""
     from rich.table import Table
 
+    from egovid.cli import validate
     from egovid.dashcam.report import archive_report
 
-    rep = archive_report(_open(archive))
+    validate.choice(colour, "--colour", ("drive", "saving"))
+    validate.outputs([], (json_out, validate.JSON, "--json"), (html_out, validate.HTML, "--html"))
+    ar = _open(archive)
+    rep = archive_report(ar)
     t = Table(title="paths")
     for col in ("path", "length", "sequences", "frames", "stored", "bits/frame", "saving"):
         t.add_column(col, justify="right")
@@ -375,3 +410,282 @@ def report(
         from egovid.io.files import atomic_write_text
 
         atomic_write_text(json_out, json.dumps(rep, indent=1, default=str))
+    if html_out is not None:
+        from egovid.dashcam.fleetstore import FleetStore
+        from egovid.dashcam.mapdata import map_drives
+        from egovid.dashcam.mapview import OSM_TILES, render_map
+        from egovid.io.files import atomic_write_text
+
+        drives, missing = map_drives(ar, FleetStore(ar.catalogue))
+        url = {"osm": OSM_TILES, "none": None}.get(tiles, tiles)
+        atomic_write_text(
+            html_out,
+            render_map(drives, title=f"{archive.resolve().name}: {len(drives)} drives", tiles=url, colour_by=colour),
+        )
+        note = f" ({len(missing)} drive(s) without a GPS track: {', '.join(missing)})" if missing else ""
+        console.print(f"map of {len(drives)} drive(s) → {html_out}{note}")
+
+
+# -- the fleet commands: find, clip, forget, lock, unlock -------------------------------------------
+
+
+def _fleet(archive: Path):
+    from egovid.dashcam.fleetstore import FleetStore
+
+    ar = _open(archive)
+    return ar, FleetStore(ar.catalogue)
+
+
+def _utc(text: str, option: str) -> float:
+    """``--at``/``--from``/``--to``: ISO 8601 (``2024-05-04T08:00:00Z``, ``+02:00``; no zone = UTC)."""
+    import datetime as dt
+
+    from egovid.errors import EgovidError
+
+    try:
+        t = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    except ValueError:
+        raise EgovidError(f"{option} {text!r} is not an ISO 8601 time", "write e.g. 2024-05-04T08:00:00Z") from None
+    return (t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp()
+
+
+def _floats(text: str, n: int, option: str, example: str) -> tuple[float, ...]:
+    from egovid.errors import EgovidError
+
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != n:
+        raise EgovidError(f"{option} {text!r} is not {n} comma-separated numbers", f"write e.g. {option} {example}")
+    return vals
+
+
+def _write_json(target: str, obj) -> None:
+    """JSON to a file (checked before the work by the command) or, for ``-``, to stdout."""
+    if target == "-":
+        typer.echo(json.dumps(obj, indent=1, default=str))
+        return
+    from egovid.io.files import atomic_write_text
+
+    atomic_write_text(Path(target), json.dumps(obj, indent=1, default=str))
+
+
+@app.command("find")
+def find_cmd(
+    archive: Path = typer.Argument(..., help="Archive folder."),
+    near: str = typer.Option(None, "--near", help="A place, LAT,LON in degrees (WGS 84), e.g. 48.1372,11.5756."),
+    radius: float = typer.Option(50.0, "--radius", help="Metres around --near that count as near."),
+    bbox: str = typer.Option(None, "--bbox", help="A box, WEST,SOUTH,EAST,NORTH in degrees."),
+    t_from: str = typer.Option(None, "--from", help="Recorded at or after this time (ISO 8601; no zone = UTC)."),
+    t_to: str = typer.Option(None, "--to", help="Recorded before this time (ISO 8601; no zone = UTC)."),
+    json_out: str = typer.Option(None, "--json", help="Write the stretches as JSON to this file (- for stdout)."),
+) -> None:
+    """Find where and when drives were recorded: every stretch of a drive that passed within
+    --radius metres of --near, inside --bbox, and/or between --from and --to (all given criteria
+    must hold). Prints drive, UTC start and end, frames and closest distance; `egovid dashcam
+    clip` cuts any of them out.
+
+    Uses the catalogue's spatial index (SQLite R*Tree; PostGIS or a GiST index in PostgreSQL)
+    over the drives' GPS tracks.
+    """
+    from rich.table import Table
+
+    from egovid.cli import validate
+    from egovid.dashcam.clock import iso
+    from egovid.dashcam.find import Query, search
+
+    q = Query(
+        near=_floats(near, 2, "--near", "48.1372,11.5756") if near else None,
+        radius=radius,
+        bbox=_floats(bbox, 4, "--bbox", "11.50,48.10,11.60,48.20") if bbox else None,
+        t_from=_utc(t_from, "--from") if t_from else None,
+        t_to=_utc(t_to, "--to") if t_to else None,
+    )
+    if json_out not in (None, "-"):
+        validate.outputs([], (Path(json_out), validate.JSON, "--json"))
+    _ar, fleet = _fleet(archive)
+    found = search(fleet, q)
+    if json_out is not None:
+        _write_json(json_out, [s.to_dict() for s in found])
+        if json_out == "-":
+            return
+    t = Table(title=f"{len(found)} stretch(es)")
+    for col in ("drive", "kind", "start (UTC)", "end (UTC)", "frames", "closest"):
+        t.add_column(col, justify="right" if col in ("frames", "closest") else "left")
+    for s in found:
+        dist = f"{s.distance_m:.1f} m" if s.distance_m is not None else "-"
+        t.add_row(s.drive, s.kind, iso(s.start_utc), iso(s.end_utc), f"{s.frame_start}-{s.frame_end - 1}", dist)
+    console.print(t)
+
+
+@app.command("clip")
+@all_or_nothing
+def clip_cmd(
+    archive: Path = typer.Argument(..., help="Archive folder."),
+    out: Path = typer.Option(..., "-o", "--out", help="The clip to write: an .mp4 (H.264; its .gpx goes beside it)."),
+    at: str = typer.Option(None, "--at", help="The moment, ISO 8601 UTC (e.g. 2024-05-04T08:12:30Z)."),
+    near: str = typer.Option(None, "--near", help="Or the place, LAT,LON: the closest pass of the latest drive there."),
+    radius: float = typer.Option(50.0, "--radius", help="Metres around --near that count as a pass."),
+    drive: str = typer.Option(None, "--drive", help="Only this drive (name or id)."),
+    before: float = typer.Option(10.0, "--before", help="Seconds before the moment."),
+    after: float = typer.Option(10.0, "--after", help="Seconds after the moment."),
+    crf: int = typer.Option(18, "--crf", min=0, max=51, help="x264 quality (lower = better, larger)."),
+    lossless: bool = typer.Option(False, "--lossless", help="Lossless H.264: every frame bit-exact with the archive."),
+) -> None:
+    """Cut an incident clip: the frames around a moment (--at) or a place (--near) as a shareable
+    H.264 MP4, with the archived audio and telemetry of that stretch, and its GPS track as GPX
+    beside it (incident.gpx). Frames are those the archive decodes, checked against the encoder's
+    digests like extract; --lossless keeps them bit for bit.
+    """
+    from egovid.cli import validate
+    from egovid.dashcam.clip import plan_clip, write_clip
+
+    validate.outputs([], (out, ".mp4", "clip"), (out.with_suffix(".gpx"), ".gpx", "GPX beside the clip"))
+    validate.number(radius, "--radius", lo=0, lo_open=True, hi=100_000, unit="m")
+    validate.number(before, "--before", lo=0, hi=3600, unit="s")
+    validate.number(after, "--after", lo=0, hi=3600, unit="s")
+    ar, fleet = _fleet(archive)
+    plan = plan_clip(
+        ar,
+        fleet,
+        at=_utc(at, "--at") if at else None,
+        near=_floats(near, 2, "--near", "48.1372,11.5756") if near else None,
+        radius=radius,
+        drive=drive,
+        before=before,
+        after=after,
+    )
+    with staged_progress() as cb:
+        rep = write_clip(ar, fleet, plan, out, crf=crf, lossless=lossless, progress=lambda k, n: cb("clip", k, n))
+    extra = f", with {' and '.join(rep['streams'])}" if rep["streams"] else ""
+    gpx = f"; {rep['gpx']} ({rep['gps_fixes']} fixes)" if rep["gpx"] else "; no GPS fixes in the stretch"
+    console.print(
+        f"{rep['drive']}: frames {rep['frame_start']}-{rep['frame_end'] - 1} from {rep['start']} → {out}{extra}{gpx}"
+    )
+
+
+@app.command("forget")
+def forget_cmd(
+    archive: Path = typer.Argument(..., help="Archive folder."),
+    drives: list[str] = typer.Argument(None, help="Drives to forget (names or ids)."),
+    older_than: str = typer.Option(
+        None, "--older-than", help="Also every unlocked drive recorded longer ago than this: 90d, 12h, 2w, 1y."
+    ),
+    keep_bytes: str = typer.Option(
+        None,
+        "--keep-bytes",
+        help="Also the oldest unlocked drives until the archive fits in this: 200G, 1.5T, 500M (binary units).",
+    ),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Only say what would be forgotten and freed."),
+    verify: bool = typer.Option(True, help="Decode every drive coded against a forgotten one before committing."),
+    json_out: str = typer.Option(None, "--json", help="Write what was done as JSON (- for stdout)."),
+) -> None:
+    """Forget drives and free their space; locked drives are never forgotten.
+
+    A drive other drives are coded against keeps exactly the frames they need (hidden, no longer
+    listed), so every remaining drive extracts bit for bit as before (checked before anything
+    changes, unless --no-verify). One transaction: a forget that is killed changes nothing, or
+    leaves only unreferenced bitstreams for `egovid dashcam gc`.
+    """
+    from egovid.dashcam.forget import choose, forget_drives
+    from egovid.dashcam.retention import parse_duration, parse_size
+    from egovid.errors import EgovidError
+
+    age = parse_duration(older_than) if older_than else None
+    budget = parse_size(keep_bytes) if keep_bytes else None
+    if not drives and age is None and budget is None:
+        raise EgovidError("nothing to forget", "name drives, or give --older-than AGE and/or --keep-bytes SIZE")
+    if json_out not in (None, "-"):
+        from egovid.cli import validate
+
+        validate.outputs([], (Path(json_out), validate.JSON, "--json"))
+    ar, fleet = _fleet(archive)
+    chosen, skipped = choose(ar, fleet, list(drives or []), older_than_s=age, keep_bytes=budget)
+    for name in skipped:
+        err_console.print(f"kept {name}: locked")
+    if not chosen:
+        console.print("nothing to forget")
+        return
+    rep = forget_drives(ar, fleet, chosen, verify=verify, dry_run=dry_run, say=err_console.print)
+    rep.skipped_locked = skipped
+    verb = "would forget" if dry_run else "forgot"
+    console.print(f"{verb} {len(rep.forgotten)} drive(s): {', '.join(rep.forgotten)}")
+    for name, needers in rep.kept_as_reference.items():
+        console.print(f"  {name}: kept only the frames {', '.join(needers)} are coded against (hidden)")
+    console.print(
+        f"{'would free' if dry_run else 'freed'} {rep.bytes_freed / 1024**2:.2f} MiB ({rep.bytes_freed} bytes)"
+    )
+    if json_out is not None:
+        _write_json(json_out, rep.to_dict())
+
+
+def _set_lock(archive: Path, drives: list[str], locked: bool, note: str | None) -> None:
+    ar, fleet = _fleet(archive)
+    with ar.catalogue.transaction():
+        found = [fleet.live_drive(k) for k in drives]
+        for d in found:
+            fleet.set_lock(d.id, locked, note if locked else None)
+    verb = "locked" if locked else "unlocked"
+    console.print(f"{verb} {', '.join(d.name for d in found)}")
+
+
+@app.command("lock")
+def lock_cmd(
+    archive: Path = typer.Argument(..., help="Archive folder."),
+    drives: list[str] = typer.Argument(..., help="Drives to protect (names or ids)."),
+    note: str = typer.Option(None, "--note", help="Why (shown by forget when it refuses)."),
+) -> None:
+    """Protect drives from `forget` and its policies (event files are locked when ingested)."""
+    _set_lock(archive, drives, True, note)
+
+
+@app.command("unlock")
+def unlock_cmd(
+    archive: Path = typer.Argument(..., help="Archive folder."),
+    drives: list[str] = typer.Argument(..., help="Drives to unprotect (names or ids)."),
+) -> None:
+    """Let `forget` remove drives again."""
+    _set_lock(archive, drives, False, None)
+
+
+@app.command("check")
+def check(
+    archive: Path = typer.Argument(..., help="Archive folder."),
+    repair: bool = typer.Option(
+        False,
+        "--repair",
+        help="Rebuild what can be rebuilt: restore a damaged or deleted catalogue from its last backup (or "
+        "salvage what SQLite can read), rebuild the spatial index, delete temporary files of interrupted "
+        "ingests. Bitstreams are never changed.",
+    ),
+    deep: bool = typer.Option(False, "--deep", help="Also decode every drive and compare with the encoder's digests."),
+) -> None:
+    """Verify an archive: its catalogue, every bitstream (present, SHA-256 intact), every drive's
+    segments and reference chains (no loops, no missing drives).
+
+    Prints what it found; exits with status 2 when something cannot be read back.
+    """
+    from egovid.cli.validate import input_folder
+    from egovid.dashcam.integrity import check_archive
+    from egovid.errors import EgovidError
+
+    input_folder(archive, "archive folder")
+    with staged_progress() as cb:
+        rep = check_archive(archive, repair=repair, deep=deep, progress=cb)
+    for f in rep.findings:
+        mark = "repaired" if f.repaired else f.severity
+        console.print(f"{mark:>8}  {f.problem}" + (f" ({f.fix})" if f.fix else ""), highlight=False)
+    mib = rep.blob_bytes / 2**20
+    decoded = f", {rep.decoded_frames} frames decoded and compared" if deep else ""
+    console.print(
+        f"{rep.drives} drive(s), {rep.segments} segment(s), {rep.blobs} bitstream(s) ({mib:.1f} MiB) verified{decoded}"
+    )
+    if rep.errors:
+        fix = (
+            "what --repair could not rebuild must come from a backup of the archive, or its drives re-ingested"
+            if repair
+            else f"run `egovid dashcam check {archive} --repair`"
+        )
+        raise EgovidError(f"archive {archive} has {len(rep.errors)} problem(s) (listed above)", fix)
+    console.print(f"archive {archive} is sound")

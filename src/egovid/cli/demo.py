@@ -69,11 +69,13 @@ def demo(
 
     console.rule("[bold]fpv 4/4: FPMI-preserving stabilisation (egovid fpv stabilize)")
     res = stabilize(clip.video, fpv / "stabilized.mp4", intrinsics=intr, motion=est.trajectory)
-    write_report(fpv / "stabilize-report.html", res, str(clip.video), intr.hfov_deg, intr.vfov_deg, 30.0)
+    write_report(fpv / "stabilize-report.html", res, str(clip.video), intr, 30.0)
     s = res.summary()
+    mb, ma = s["measured"]["before"], s["measured"]["after"]
     console.print(
-        f"VE {s['ve_before']:.3f} → {s['ve_after']:.3f}, masked ITF {s['itf_before_db']:.1f} → "
-        f"{s['itf_after_db']:.1f} dB, first-person motion kept {100 * s['fpmi_retention']:.0f} %"
+        f"measured on the output: VE {mb['ve']:.3f} → {ma['ve']:.3f}, ITF {mb['itf_db']:.1f} → "
+        f"{ma['itf_db']:.1f} dB, first-person motion kept {100 * s['fpmi_retention_measured']:.0f} %, "
+        f"zoom {s['zoom']['mean']:.3f}"
     )
 
     console.rule("[bold]dashcam: two drives, one archive (egovid dashcam)")

@@ -1,4 +1,4 @@
-"""``egovid voeval``: evaluate visual odometers on controlled synthetic videos."""
+"""``egovid voeval``: evaluate visual odometers on controlled synthetic videos and real sequences."""
 
 from __future__ import annotations
 
@@ -10,8 +10,15 @@ from egovid.cli.common import console, staged_progress
 
 app = typer.Typer(
     help="Evaluate visual odometers: which factor hurts which VO, for robots (pose error), "
-    "stabilisation (OITF) and augmented reality (RITF).",
+    "stabilisation (OITF) and augmented reality (RITF), on synthetic scenes and real sequences.",
     no_args_is_help=True,
+)
+
+SEQUENCE_HELP = (
+    "A real sequence FORMAT:PATH, repeatable: tum:FOLDER (TUM RGB-D), euroc:FOLDER (EuRoC MAV), "
+    "kitti:FOLDER (KITTI odometry sequence with poses), frames:FOLDER (images + TUM trajectory + "
+    "camera.txt), gyro:VIDEO (a camera's embedded gyro is the reference). Cells are named after "
+    "the folder or file."
 )
 
 
@@ -19,41 +26,87 @@ app = typer.Typer(
 def run(
     out: Path = typer.Option(..., "--out", help="Run folder (created; an existing run is resumed)."),
     vo: str = typer.Option(
-        None, help="Built-in odometers: egovid, ecc, monovo, colmap, orbslam3 (default: all available)."
+        None,
+        help="Built-in odometers, comma-separated: egovid, ecc, monovo, colmap, orbslam3 (default: all available; "
+        "'' for none, with --vo-cmd).",
     ),
     vo_cmd: list[str] = typer.Option(
-        [], help='External VO: "[NAME=]tool {video} {out}" writing TUM/KITTI; repeatable.'
+        [], help='External VO: "[NAME=]tool {video} {out}" writing TUM (matched by time) or KITTI; repeatable.'
     ),
-    frames: int = typer.Option(48, min=10, max=2000, help="Frames per test video."),
-    size: str = typer.Option("320x240", help="WIDTHxHEIGHT of the test videos."),
+    sequence: list[str] = typer.Option([], "--sequence", help=SEQUENCE_HELP),
+    synthetic: bool = typer.Option(
+        True, help="Include the synthetic factor scenes (--no-synthetic: real sequences only)."
+    ),
+    scenes: str = typer.Option(
+        None,
+        help="Synthetic scenes, comma-separated (default all: orbit-ideal, orbit-fog, orbit-unseen, orbit-sensor, "
+        "pano-ideal, pano-motion).",
+    ),
+    real_factors: str = typer.Option(
+        "noise,blur,illumination", help="Image-level factors applied to the frames of real sequences."
+    ),
+    frames: int = typer.Option(
+        None,
+        min=10,
+        max=100000,
+        help="Frames per synthetic scene, and the most taken from each real sequence (default 300; 48 with --quick).",
+    ),
+    size: str = typer.Option(
+        None, help="WIDTHxHEIGHT of the synthetic scenes (default 640x480; 320x240 with --quick)."
+    ),
+    quick: bool = typer.Option(False, "--quick", help="The small smoke-test grid: 48 frames at 320x240."),
     levels: str = typer.Option("lossless,crf18,crf24,crf30,crf36,crf42,crf48", help="Compression levels."),
-    workers: int = typer.Option(2, min=1, max=64, help="Parallel worker processes."),
+    seeds: str = typer.Option("0", help="Seeds, comma-separated: each scene is made and scored once per seed."),
+    anchor: str = typer.Option(
+        "none",
+        help="Late-starting odometers: 'none' scores their output as given, 'truth' anchors their first "
+        "pose to the true orientation (favours late starters; see docs/voeval.md).",
+    ),
+    scheduler: str = typer.Option(
+        None,
+        help="Dask scheduler (tcp://HOST:8786) to run the cells on; default $DASK_SCHEDULER_ADDRESS, else this "
+        "machine. The run folder must be reachable at the same path from every worker.",
+    ),
+    workers: int = typer.Option(
+        2, min=1, max=512, help="Local worker processes without a scheduler (1: in this process)."
+    ),
     report: bool = typer.Option(True, help="Write the report when done."),
 ) -> None:
-    """Render the test scenes and their compression ladder, run every odometer on every video
-    (finished cells are kept: re-running resumes), and score pose error, OITF and RITF."""
-    from egovid.cli.common import parse_size
+    """Make the test videos (synthetic scenes, real sequences and their degraded copies, the H.264
+    ladder), run every odometer on every video (finished cells are kept: re-running resumes), and
+    score pose error, OITF and RITF."""
+    from egovid.cli.common import parse_ints, parse_size
     from egovid.cli.validate import output_folder
-    from egovid.errors import EgovidError
-    from egovid.voeval.runner import LEVELS, GridConfig, run_grid
+    from egovid.engine import EngineConfig, scheduler_address
+    from egovid.voeval.runner import (
+        DEFAULT_FRAMES,
+        DEFAULT_SIZE,
+        QUICK_FRAMES,
+        QUICK_SIZE,
+        GridConfig,
+        default_vos,
+        run_grid,
+    )
+    from egovid.voeval.scenes import SCENES
 
-    output_folder(out, what="run folder")
-    w, h = parse_size(size)
-    lv = [x.strip() for x in levels.split(",") if x.strip()]
-    bad = [x for x in lv if x not in LEVELS]
-    if bad:
-        raise EgovidError(f"unknown compression level(s) {', '.join(bad)}", f"use some of {', '.join(LEVELS)}")
+    output_folder(out, inputs=[Path(x.partition(":")[2]) for x in sequence], what="run folder")
+    w, h = parse_size(size) if size else (QUICK_SIZE if quick else DEFAULT_SIZE)
     cfg = GridConfig(
-        vos=[x.strip() for x in vo.split(",") if x.strip()],
+        vos=_names(vo) if vo is not None else default_vos(),
         commands=list(vo_cmd),
-        frames=frames,
+        frames=frames or (QUICK_FRAMES if quick else DEFAULT_FRAMES),
         width=w,
         height=h,
-        levels=lv,
-        workers=workers,
+        levels=_names(levels),
+        scenes=(_names(scenes) if scenes is not None else list(SCENES)) if synthetic else [],
+        sequences=list(sequence),
+        real_factors=_names(real_factors),
+        seeds=list(parse_ints(seeds, "--seeds")),
+        anchor=anchor.strip().lower(),
     )
+    engine = EngineConfig(scheduler=scheduler_address(scheduler), workers=workers)
     with staged_progress() as cb:
-        r = run_grid(out, cfg, progress=cb)
+        r = run_grid(out, cfg, engine, progress=cb)
     console.print(f"{r['cells']} cells ({r['computed']} computed now) in {r['seconds']:.0f} s → {out}/results")
     if report:
         from egovid.voeval.report import write_report
@@ -62,10 +115,25 @@ def run(
         console.print(f"report {h_}\n       {m_}")
 
 
+def _names(text: str) -> list[str]:
+    return [x.strip() for x in text.split(",") if x.strip()]
+
+
 @app.command("report")
-def report_cmd(run_dir: Path = typer.Argument(..., help="Run folder of `egovid voeval run`.")) -> None:
-    """Factor matrices, heatmaps and the "which VO for my application" answers (HTML + Markdown)."""
+def report_cmd(
+    run_dir: Path = typer.Argument(..., help="Run folder of `egovid voeval run`."),
+    norm: str = typer.Option(
+        "thesis",
+        help="Factor normalisation: 'thesis' (eq. 22.2-22.4 as written) or 'max_abs' (|OITF-RITF| and max|E|).",
+    ),
+) -> None:
+    """Factor matrices, rotation plots and the "which VO for my application and factor" table
+    (HTML + Markdown + matrices.json)."""
+    from egovid.errors import EgovidError
+    from egovid.voeval.matrices import NORMS
     from egovid.voeval.report import write_report
 
-    h_, m_ = write_report(run_dir)
+    if norm not in NORMS:
+        raise EgovidError(f"unknown normalisation {norm!r}", f"use one of {', '.join(NORMS)}")
+    h_, m_ = write_report(run_dir, norm=norm)
     console.print(f"report {h_}\n       {m_}")

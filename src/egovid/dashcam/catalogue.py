@@ -191,7 +191,7 @@ class Catalogue(ABC):
 
     @abstractmethod
     def blob_names(self) -> set[str]:
-        """Names of every blob a segment refers to."""
+        """Names of every blob the catalogue refers to (segments, and drives' audio/telemetry)."""
 
     @abstractmethod
     def close(self) -> None: ...
@@ -261,8 +261,12 @@ class _SqlCatalogue(Catalogue):
             raise
         else:
             self._q("COMMIT")
+            self._committed()
         finally:
             self._depth = 0
+
+    def _committed(self) -> None:
+        """Called after each COMMIT (a backend may keep a backup)."""
 
     def _insert(self, sql: str, args) -> int:
         return int(self._q(sql + " RETURNING id", args).fetchone()[0])
@@ -427,7 +431,10 @@ class _SqlCatalogue(Catalogue):
         return self._segment(row)
 
     def blob_names(self) -> set[str]:
-        return {r[0] for r in self._q("SELECT DISTINCT blob FROM segments")}
+        names = {r[0] for r in self._q("SELECT DISTINCT blob FROM segments")}
+        if self.get_meta("fleet_schema") is not None:  # drives' audio and telemetry (fleetstore.py)
+            names |= {r[0] for r in self._q("SELECT streams_blob FROM drive_meta WHERE streams_blob IS NOT NULL")}
+        return names
 
 
 class SqliteCatalogue(_SqlCatalogue):
@@ -440,16 +447,40 @@ class SqliteCatalogue(_SqlCatalogue):
     _NEAR = "SELECT DISTINCT path_id FROM path_index WHERE max_x >= ? AND max_y >= ? AND min_x <= ? AND min_y <= ?"
 
     def __init__(self, path: str | Path, *, create: bool = False) -> None:
+        from egovid.dashcam import integrity
+
         self.file = Path(path)
-        self._db = sqlite3.connect(str(self.file), isolation_level=None, timeout=30.0)
-        self._db.execute("PRAGMA foreign_keys = ON")
-        self._db.execute("PRAGMA journal_mode = WAL")
-        self._db.execute("PRAGMA synchronous = FULL")
+        self._saved = -1  # total_changes when the backup was last written
+        if not create and not self.file.exists():  # never a fresh empty catalogue beside old blobs
+            raise integrity.unusable_catalogue(self.file, "missing")
+        try:
+            uri = integrity.sqlite_uri(self.file, "rwc" if create else "rw")
+            self._db = sqlite3.connect(uri, uri=True, isolation_level=None, timeout=30.0)
+            self._db.execute("PRAGMA foreign_keys = ON")
+            self._db.execute("PRAGMA journal_mode = WAL")
+            self._db.execute("PRAGMA synchronous = FULL")
+        except sqlite3.DatabaseError as exc:
+            raise integrity.unusable_catalogue(self.file, f"damaged ({exc})") from None
         if create:
             with self.transaction():
                 for stmt in self._ddl():
                     self._db.execute(stmt)
                 self.set_meta("schema_version", str(SCHEMA_VERSION))
+        else:
+            problem = integrity.catalogue_problem(self._db, SCHEMA_VERSION)
+            if problem is not None:
+                self._db.close()
+                raise integrity.unusable_catalogue(self.file, problem)
+        self._saved = self._db.total_changes
+
+    def _committed(self) -> None:
+        """Copy the catalogue to its backup after a commit that changed it (``check --repair``
+        restores a damaged or deleted catalogue from it)."""
+        from egovid.dashcam.integrity import write_backup
+
+        if self._db.total_changes != self._saved:
+            write_backup(self._db, self.file)
+            self._saved = self._db.total_changes
 
     def _begin(self) -> None:
         self._db.execute("BEGIN IMMEDIATE")  # takes the write lock now: one ingest at a time

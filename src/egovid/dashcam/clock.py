@@ -12,9 +12,10 @@ frame, in this order:
 3. a GPS log without video times (a separate file, or embedded fixes without sample times): a
    candidate start must put at least ``min_cover`` of the video inside the log. Candidates, in
    order: ``creation_time`` and the time in the file name (both minus ``--tz-offset`` hours when
-   given), then the log's first fix when the log is as long as the video (it is this video's own
-   log). A candidate the log contradicts is reported, never used silently; when none fits the
-   error names the time-zone shift that would (``--tz-offset``), or ``--start``.
+   given). A camera clock the log contradicts is never replaced silently: the error says how much
+   of the video the log covers and names the time-zone shift that would fit (``--tz-offset``), or
+   ``--start``. Only a video with no clock at all takes the first fix of a log as long as itself
+   (its own log).
 
 ``gps_offset`` seconds are added to whatever start was chosen (a known lag of a GPS logger).
 All times are UTC seconds since the epoch.
@@ -153,27 +154,25 @@ def resolve_clock(
         candidates.append((f"creation_time{zone_label}", creation_time - tz * 3600.0))
     if file_time is not None:
         candidates.append((f"file name time{zone_label}", file_time - tz * 3600.0))
-    log_span = float(log.t[-1] - log.t[0])
-    own_log = abs(log_span - duration) <= max(5.0, 0.1 * duration)
     for label, s in candidates:
-        c = coverage(log, s, duration)
-        if c >= min_cover:
+        if coverage(log, s, duration) >= min_cover:
             return VideoClock(s + gps_offset, label, tuple(notes))
-        notes.append(f"{label} {iso(s)} puts {100 * c:.0f} % of the video inside the GPS log")
-    if own_log:
-        s = float(log.t[0])
-        if candidates:
-            d = candidates[0][1] - s
-            notes.append(f"used the GPS log's first fix {iso(s)}: the camera clock is {_hours(d)} off it")
-        return VideoClock(s + gps_offset, "GPS log start", tuple(notes))
-    when = f" from {iso(candidates[0][1])}" if candidates else ""
-    problem = (
-        f"GPS log {Path(log.source).name or 'track'} ({iso(float(log.t[0]))} to {iso(float(log.t[-1]))}) "
-        f"does not cover {video_name}{when}"
-    )
     if not candidates:
-        raise EgovidError(problem + " (the video has no clock)", "give its start with --start ISO-TIME")
-    shifts = [h + tz for h in zone_shifts(log, candidates[0][1], duration, min_cover)]
+        # The video has no clock at all: nothing contradicts the log, and a log as long as the
+        # video is the video's own (its first fix is the first frame).
+        if abs(float(log.t[-1] - log.t[0]) - duration) <= max(5.0, 0.1 * duration):
+            notes.append("the video has no clock: its start is the GPS log's first fix")
+            return VideoClock(float(log.t[0]) + gps_offset, "GPS log start", tuple(notes))
+        raise EgovidError(
+            f"{video_name} has no clock to place it in GPS log {Path(log.source).name or 'track'}",
+            "give its start with --start ISO-TIME",
+        )
+    label, s = candidates[0]
+    problem = (
+        f"GPS log {Path(log.source).name or 'track'} ({iso(float(log.t[0]))} to {iso(float(log.t[-1]))}) covers "
+        f"{100 * coverage(log, s, duration):.0f}% of {video_name} (from {iso(s)}, its {label})"
+    )
+    shifts = [h + tz for h in zone_shifts(log, s, duration, min_cover)]
     if shifts:
         whole = [h for h in shifts if h == int(h)] or shifts[:1]
         more = f" (also fitting: {', '.join(f'{h:+g}' for h in whole[1:4])})" if len(whole) > 1 else ""

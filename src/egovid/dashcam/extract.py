@@ -226,19 +226,37 @@ def segment_digest(source: FrameSource, seg: Segment) -> str:
     return h.hexdigest()
 
 
+def drive_frames(source: FrameSource, drive: Drive, f0: int, f1: int) -> Iterator[np.ndarray]:
+    """Frames ``f0`` … ``f1 − 1`` of a drive, segment by segment, checked (:func:`checked_frames`)."""
+    for seg in source.segments(drive.id):
+        if seg.frame_end <= f0 or seg.frame_start >= f1:
+            continue
+        yield from checked_frames(source, drive.name, seg, max(f0, seg.frame_start), min(f1, seg.frame_end))
+
+
 def extract_video(
     source: FrameSource,
     drive: Drive,
     out: str | os.PathLike,
     progress: Callable[[int, int], None] | None = None,
     frames: tuple[int, int] | None = None,
+    *,
+    colour=None,
+    streams: bytes | None = None,
+    crf: int | None = None,
+    audio_codec: str | None = None,
 ) -> Path:
     """Write a drive back as a lossless video (MKV/FFV1, or MP4 with lossless H.264), checked
     against the encoder's reconstruction (:func:`checked_frames`).
 
     ``frames``: (first, end) frame numbers of the drive to write (end exclusive; default all).
     Decoding starts at the random-access run holding ``first``, in this drive and in the
-    drives it refers to."""
+    drives it refers to. ``colour``: the source's colour tags (io.video.ColourTags) to tag the
+    output with; ``streams``: the drive's archived audio and telemetry (dashcam/streams.py), copied
+    for the same stretch (``audio_codec``: re-encode the audio, e.g. ``aac``); ``crf``: an MP4 for
+    sharing (H.264 at this quality) instead of a lossless one."""
+    from egovid.dashcam.streams import StreamCopier
+
     out = Path(out)
     ext = out.suffix.lower()
     if ext not in (".mkv", ".mp4"):
@@ -249,7 +267,12 @@ def extract_video(
             f"frames {f0}-{f1 - 1} are not in drive {drive.name} (frames 0-{drive.frames - 1})",
             "choose a range inside the drive (see `egovid dashcam show`)",
         )
+    from egovid.dashcam.integrity import check_chain
+
+    check_chain(source, drive.id)
     codec_name, options = ("ffv1", None) if ext == ".mkv" else ("libx264", {"qp": "0", "preset": "ultrafast"})
+    if crf is not None and ext == ".mp4":
+        options = {"crf": str(crf), "preset": "veryfast"}
     done, total = 0, f1 - f0
     with VideoWriter(
         out,
@@ -261,13 +284,19 @@ def extract_video(
         preset=None,
         pix_fmt="yuv420p",
         options=options,
+        colour=colour,
     ) as w:
-        for seg in source.segments(drive.id):
-            if seg.frame_end <= f0 or seg.frame_start >= f1:
-                continue
-            for frame in checked_frames(source, drive.name, seg, max(f0, seg.frame_start), min(f1, seg.frame_end)):
-                w.write_i420(frame, done / drive.fps)
-                done += 1
-                if progress:
-                    progress(done, total)
+        copier = (
+            StreamCopier(streams, w.container, f0 / drive.fps, f1 / drive.fps, audio_codec=audio_codec)
+            if streams
+            else None
+        )
+        for frame in drive_frames(source, drive, f0, f1):
+            w.write_i420(frame, done / drive.fps)
+            done += 1
+            if progress:
+                progress(done, total)
+        if copier is not None:
+            copier.write()
+            copier.close()
     return out

@@ -2,12 +2,13 @@
 
 A drive coded jointly decodes with the frames of its reference drive, so forgetting a drive other
 drives were coded against cannot simply delete its bitstreams: re-encoding the dependents against
-something else would change their pictures. :func:`plan_forget` keeps exactly the segments still
-needed: every segment of a live drive, and, transitively, every segment holding a frame that a
-needed joint segment refers to. A forgotten drive whose segments are all unneeded is purged; one
-with needed segments stays as a hidden *reference* (no longer listed, found, extracted or used as a
-baseline for new drives) holding only those segments, and is purged by a later forget once nothing
-needs them. Bytes freed are those of the bitstreams no remaining segment uses.
+something else would change their pictures. :func:`plan_forget` keeps exactly the random-access
+runs still needed (24 frames each by default, the unit decoding can start at): every run of a live
+drive, and, transitively, every run holding a frame that a needed run of a joint segment is
+predicted from. A forgotten drive none of whose runs is needed is purged; one with needed runs stays
+as a hidden *reference* (no longer listed, found, extracted or used as a baseline for new drives)
+holding only those runs (its segments trimmed), and is purged by a later forget once nothing needs
+them. Bytes freed are those of the bitstreams and runs no remaining segment uses.
 
 Policies pick the drives: :func:`older_than` (recorded before a time) and :func:`over_budget`
 (oldest first until the archive fits a byte budget, counting what forgetting really frees).
@@ -48,8 +49,10 @@ def parse_size(text: str) -> int:
 @dataclass(frozen=True)
 class SegmentRef:
     """What retention needs to know of a segment: its drive, frames [frame_start, frame_end) of that
-    drive, its bitstream and size, and for a joint segment the reference drive and the frames of it
-    that the segment's frames are predicted from."""
+    drive, its bitstream and size, for a joint segment the reference drive and, per frame, the frame
+    of it the frame is predicted from (``refmap``; negative: none), and its random-access runs: one
+    every ``refresh`` frames (0: a single run) with ``run_bytes`` bytes each (empty: unknown, then
+    the segment is kept or dropped whole)."""
 
     id: int
     drive_id: int
@@ -58,15 +61,36 @@ class SegmentRef:
     blob: str
     bytes: int
     ref_drive_id: int | None = None
-    ref_frames: np.ndarray | None = None
+    refmap: np.ndarray | None = None
+    refresh: int = 0
+    run_bytes: tuple[int, ...] = ()
+
+    @property
+    def runs(self) -> int:
+        n = self.frame_end - self.frame_start
+        return -(-n // self.refresh) if self.refresh > 0 and n > 0 else 1
+
+    def run_of(self, frames: np.ndarray) -> np.ndarray:
+        """Run index of each of ``frames`` (drive numbering, inside the segment)."""
+        rel = np.asarray(frames, np.int64) - self.frame_start
+        return rel // self.refresh if self.refresh > 0 else np.zeros(len(rel), np.int64)
+
+    def frames_of(self, runs: np.ndarray) -> np.ndarray:
+        """Bool mask over the segment's frames: those in the given runs (bool mask over runs)."""
+        n = self.frame_end - self.frame_start
+        if self.refresh <= 0:
+            return np.full(n, bool(runs[0]))
+        return np.repeat(runs, self.refresh)[:n]
 
 
 @dataclass
 class ForgetPlan:
-    """Segments to delete and to keep, drives to purge entirely and drives kept as hidden
-    references (with the live drives that still need them), and the bytes freed."""
+    """What a forget does: segments deleted whole, segments trimmed to the runs still needed
+    (segment id -> kept run ranges [r0, r1)), drives kept as hidden references (their kept segments,
+    and the live drives that need them), drives purged, the blobs that go, and the bytes freed."""
 
     delete_segments: list[int] = field(default_factory=list)
+    trim_segments: dict[int, list[tuple[int, int]]] = field(default_factory=dict)
     keep_as_reference: dict[int, list[int]] = field(default_factory=dict)  # drive -> its kept segments
     needed_by: dict[int, list[int]] = field(default_factory=dict)  # kept drive -> live drives needing it
     purge_drives: list[int] = field(default_factory=list)
@@ -74,54 +98,91 @@ class ForgetPlan:
     bytes_freed: int = 0
 
 
-def plan_forget(segments: Iterable[SegmentRef], live_drives: Iterable[int], forgotten: Iterable[int]) -> ForgetPlan:
-    """Which segments stay and which go when only ``live_drives`` remain (see the module docstring).
+def _ranges(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[a, b) ranges of the true entries of a bool mask."""
+    idx = np.flatnonzero(mask)
+    if len(idx) == 0:
+        return []
+    cuts = np.flatnonzero(np.diff(idx) > 1)
+    starts = np.concatenate([[idx[0]], idx[cuts + 1]])
+    ends = np.concatenate([idx[cuts], [idx[-1]]]) + 1
+    return list(zip(starts.tolist(), ends.tolist(), strict=True))
 
-    ``forgotten``: drives no longer live (those being forgotten now and hidden references kept
-    earlier); every segment of theirs that no live drive needs, directly or through other needed
-    segments, is deleted."""
+
+def plan_forget(segments: Iterable[SegmentRef], live_drives: Iterable[int], forgotten: Iterable[int]) -> ForgetPlan:
+    """Which segments and runs stay and which go when only ``live_drives`` remain (see the module
+    docstring).
+
+    Every run of a live drive's segments is needed; a run of another segment is needed when a
+    needed run of a joint segment has a frame predicted from one of its frames (decoding starts at
+    a run's first frame, so whole runs count). ``forgotten``: drives no longer live (those being
+    forgotten now and hidden references kept earlier): their unneeded runs go — a segment none of
+    whose runs is needed is deleted, one with some is trimmed to them."""
     segs = list(segments)
     live = set(live_drives)
     gone = set(forgotten)
     by_drive: dict[int, list[SegmentRef]] = {}
     for s in segs:
         by_drive.setdefault(s.drive_id, []).append(s)
-    # needed: segment id -> live drives that need it (transitively)
-    needed: dict[int, set[int]] = {}
-    stack = [(s, s.drive_id) for s in segs if s.drive_id in live]
-    while stack:
-        s, root = stack.pop()
-        if root in needed.get(s.id, ()):
-            continue
-        needed.setdefault(s.id, set()).add(root)
-        if s.ref_drive_id is None or s.ref_frames is None or len(s.ref_frames) == 0:
-            continue
-        frames = np.unique(np.asarray(s.ref_frames, dtype=np.int64))
-        for t in by_drive.get(s.ref_drive_id, []):
-            lo = np.searchsorted(frames, t.frame_start)
-            if lo < len(frames) and frames[lo] < t.frame_end:
-                stack.append((t, root))
-    plan = ForgetPlan()
-    kept_blobs: set[str] = set()
+    needed = {s.id: np.zeros(s.runs, bool) for s in segs}
+    queue: list[tuple[SegmentRef, np.ndarray]] = []
     for s in segs:
-        if s.id in needed:
+        if s.drive_id in live:
+            needed[s.id][:] = True
+            queue.append((s, needed[s.id].copy()))
+    while queue:
+        s, new_runs = queue.pop()
+        if s.ref_drive_id is None or s.refmap is None or len(s.refmap) == 0:
+            continue
+        refs = np.asarray(s.refmap, np.int64)[s.frames_of(new_runs)]
+        refs = np.unique(refs[refs >= 0])
+        for t in by_drive.get(s.ref_drive_id, []):
+            inside = refs[(refs >= t.frame_start) & (refs < t.frame_end)]
+            if len(inside) == 0:
+                continue
+            mark = np.zeros(t.runs, bool)
+            mark[np.unique(t.run_of(inside))] = True
+            fresh = mark & ~needed[t.id]
+            if fresh.any():
+                needed[t.id] |= fresh
+                queue.append((t, fresh))
+    plan = ForgetPlan()
+    # Which live drives depend (through kept segments) on each drive.
+    edges: dict[int, set[int]] = {}
+    for s in segs:
+        if needed[s.id].any() and s.ref_drive_id is not None:
+            edges.setdefault(s.drive_id, set()).add(s.ref_drive_id)
+    for root in sorted(live):
+        seen, stack = set(), [root]
+        while stack:
+            for nxt in edges.get(stack.pop(), ()):
+                if nxt not in seen:
+                    seen.add(nxt)
+                    stack.append(nxt)
+        for x in seen & gone:
+            plan.needed_by.setdefault(x, []).append(root)
+    kept_blobs: set[str] = set()
+    freed: dict[str, int] = {}
+    for s in segs:
+        mask = needed[s.id]
+        if s.drive_id not in gone:
+            if not mask.all():  # a live drive's segment is always needed; anything else is a caller error
+                raise ValueError(f"segment {s.id} of drive {s.drive_id} is neither live nor forgotten")
             kept_blobs.add(s.blob)
-            if s.drive_id in gone:
-                plan.keep_as_reference.setdefault(s.drive_id, []).append(s.id)
-                plan.needed_by.setdefault(s.drive_id, [])
-                for d in needed[s.id]:
-                    if d not in plan.needed_by[s.drive_id]:
-                        plan.needed_by[s.drive_id].append(d)
-        elif s.drive_id in gone:
+            continue
+        if not mask.any():
             plan.delete_segments.append(s.id)
-        else:  # a live drive's segment is always needed; anything else is a caller error
-            raise ValueError(f"segment {s.id} of drive {s.drive_id} is neither live nor forgotten")
+            freed[s.blob] = s.bytes
+            continue
+        plan.keep_as_reference.setdefault(s.drive_id, []).append(s.id)
+        if mask.all() or len(s.run_bytes) != s.runs:
+            kept_blobs.add(s.blob)  # kept whole (all of it is needed, or its runs' sizes are unknown)
+            continue
+        plan.trim_segments[s.id] = _ranges(mask)
+        freed[s.blob] = int(sum(b for b, m in zip(s.run_bytes, mask, strict=True) if not m))
     plan.purge_drives = sorted(d for d in gone if d not in plan.keep_as_reference)
-    sizes = {s.blob: s.bytes for s in segs if s.id in plan.delete_segments}
-    plan.delete_blobs = sorted(b for b in sizes if b not in kept_blobs)
-    plan.bytes_freed = sum(sizes[b] for b in plan.delete_blobs)
-    for v in plan.needed_by.values():
-        v.sort()
+    plan.delete_blobs = sorted(b for b in freed if b not in kept_blobs)
+    plan.bytes_freed = sum(freed[b] for b in plan.delete_blobs)
     return plan
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +28,7 @@ from egovid.dashcam.blobs import BlobFile, BlobStore, FsspecBlobs, open_blobs
 from egovid.dashcam.catalogue import Catalogue, Drive, Segment, catalogue_settings, open_catalogue
 from egovid.dashcam.locks import ArchiveLocks, FileLocks, PgLocks
 from egovid.errors import EgovidError
-from egovid.io.files import atomic_write_text
+from egovid.io.files import atomic_write_text, temp_sibling, track_temp, untrack_temp
 
 MARKER = "egovid-archive.json"
 FORMAT_VERSION = 1
@@ -79,15 +80,28 @@ class Archive:
                 raise EgovidError(f"blob store {store.url} is not empty", "give a new prefix")
         if settings["backend"] != "sqlite":  # connect first: a bad URL leaves no folder behind
             open_catalogue(root, settings, create=True).close()
-        root.mkdir(parents=True, exist_ok=True)
-        if blobs is None:
-            (root / "blobs").mkdir(exist_ok=True)
-        if settings["backend"] == "sqlite":
-            open_catalogue(root, settings, create=True).close()
-        meta = {"format": FORMAT_VERSION, "catalogue": settings}
-        if blobs is not None:
-            meta["blobs"] = blobs
-        atomic_write_text(root / MARKER, json.dumps(meta, indent=1))
+        # Built in a hidden sibling folder and renamed into place: a full disk or an interruption
+        # leaves nothing behind.
+        root.parent.mkdir(parents=True, exist_ok=True)
+        tmp = track_temp(temp_sibling(root))
+        try:
+            tmp.mkdir()
+            if blobs is None:
+                (tmp / "blobs").mkdir()
+            if settings["backend"] == "sqlite":
+                open_catalogue(tmp, settings, create=True).close()
+            meta = {"format": FORMAT_VERSION, "catalogue": settings}
+            if blobs is not None:
+                meta["blobs"] = blobs
+            atomic_write_text(tmp / MARKER, json.dumps(meta, indent=1))
+            if root.exists():
+                root.rmdir()  # empty (checked above)
+            os.rename(tmp, root)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        finally:
+            untrack_temp(tmp)
         return cls(root, meta)
 
     @property

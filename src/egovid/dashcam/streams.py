@@ -18,7 +18,6 @@ and IMU of the archived telemetry directly.
 
 from __future__ import annotations
 
-import contextlib
 import io
 import os
 from collections.abc import Sequence
@@ -50,24 +49,15 @@ def _video_start(c: av.container.InputContainer) -> float:
 
 
 def _unmuxable(path, index: int) -> str | None:
-    """Why track ``index`` of ``path`` cannot go into an MP4 (None if it can): tried on its first
-    packet in memory, since the muxer only refuses when it writes the header."""
+    """Why track ``index`` of ``path`` cannot go into an MP4 (None if it can)."""
+    from egovid.io.video import _muxable
+
     with av.open(str(path)) as c:
         s = c.streams[index]
         pkt = next((p for p in c.demux(s) if p.size and p.pts is not None), None)
         if pkt is None:
             return "no samples"
-        out = av.open(io.BytesIO(), "w", format="mp4")
-        try:
-            pkt.stream = out.add_stream_from_template(s)
-            out.mux(pkt)
-            out.close()
-        except (ValueError, av.error.FFmpegError) as exc:
-            return f"the MP4 muxer refuses it ({' '.join(str(exc).split())[:60]})"
-        finally:
-            with contextlib.suppress(Exception):
-                out.close()
-    return None
+        return None if _muxable(s, "mp4", pkt) else "the MP4 muxer cannot carry it"
 
 
 def archive_streams(

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from egovid.io.video import Frame
 
-VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".ts", ".m4v", ".mts")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".ts", ".m4v", ".mts", ".webm")
 KINDS = ("drive", "event", "parking")
 MAX_GAP_S = 10.0
 OVERLAP_S = 1.0
@@ -109,25 +109,24 @@ def file_channel(path: str | os.PathLike) -> str:
 
 def expand_inputs(paths: Iterable[str | os.PathLike]) -> list[Path]:
     """The video files named, folders searched recursively (hidden entries skipped), in name order
-    within each folder; a path named twice counts once."""
+    within each folder; a path named twice counts once. A folder without videos is an error."""
+    from egovid.errors import EgovidError
+
     out: list[Path] = []
     seen: set[Path] = set()
     for raw in paths:
         p = Path(raw)
-        found = (
-            sorted(
-                (
-                    f
-                    for f in p.rglob("*")
-                    if f.is_file()
-                    and f.suffix.lower() in VIDEO_SUFFIXES
-                    and not any(x.startswith(".") for x in f.relative_to(p).parts)
-                ),
+        found = [p]
+        if p.is_dir():
+            found = sorted(
+                (f for f in p.rglob("*") if f.is_file() and f.suffix.lower() in VIDEO_SUFFIXES
+                 and not any(x.startswith(".") for x in f.relative_to(p).parts)),
                 key=lambda f: str(f.relative_to(p)).lower(),
-            )
-            if p.is_dir()
-            else [p]
-        )
+            )  # fmt: skip
+            if not found:
+                raise EgovidError(
+                    f"folder {p} holds no videos", f"give videos ({', '.join(VIDEO_SUFFIXES)}) or folders of them"
+                )
         for f in found:
             key = f.resolve()
             if key not in seen:
@@ -149,15 +148,23 @@ class FileInfo:
     fps: float
     kind: str = "drive"
     channel: str = "front"
+    resolution: float = 0.0  # seconds: 1 for a clock read from creation_time or a file name
 
 
 @dataclass
 class TripPart:
     """A file within a trip: ``gap_before`` seconds between the end of the previous file and its
-    start (0 for the first; negative for a small overlap)."""
+    start (0 for the first), and its start on the trip's clock (UTC seconds). A file that seems to
+    start before the previous one ended (by up to ``overlap``), or after a gap shorter than its
+    clock can tell (creation_time and file names count whole seconds), continues it directly."""
 
     file: FileInfo
     gap_before: float = 0.0
+    start_utc: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.start_utc is None:
+            self.start_utc = self.file.start_utc
 
 
 @dataclass
@@ -216,7 +223,10 @@ def plan_trips(
             gap = f.start_utc - (prev.start_utc + prev.duration)
             same = (prev.width, prev.height) == (f.width, f.height) and abs(prev.fps - f.fps) < 0.01 * max(f.fps, 1)
             if same and -overlap <= gap <= max_gap:
-                open_trip.parts.append(TripPart(f, gap))
+                last = open_trip.parts[-1]
+                if gap < max(f.resolution, prev.resolution):
+                    gap = 0.0  # within what the clocks can tell: the recording went on
+                open_trip.parts.append(TripPart(f, gap, last.start_utc + prev.duration + gap))
                 continue
         open_trips[f.channel] = Trip("drive", [TripPart(f)])
         trips.append(open_trips[f.channel])

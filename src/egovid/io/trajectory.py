@@ -68,14 +68,18 @@ class Trajectory:
         return Trajectory(self.times, R0T @ self.R, (self.t - self.t[0]) @ R0T.T, self.valid)
 
 
-def write_motion_csv(path: str | os.PathLike, traj: Trajectory) -> Path:
-    """Write ``frame,time,yaw,pitch,roll`` (degrees) atomically."""
+def write_motion_csv(path: str | os.PathLike, traj: Trajectory, confidence: np.ndarray | None = None) -> Path:
+    """Write ``frame,time,yaw,pitch,roll`` (degrees) atomically, plus a ``confidence`` column
+    (0-1 per frame: 1 measured, 0.5 bridged, 0 interpolated) when given."""
     e = traj.euler()
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(MOTION_COLUMNS)
+    w.writerow((*MOTION_COLUMNS, "confidence") if confidence is not None else MOTION_COLUMNS)
     for i, (t, (y, p, r)) in enumerate(zip(traj.times, e, strict=True)):
-        w.writerow([i, f"{t:.6f}", f"{y:.6f}", f"{p:.6f}", f"{r:.6f}"])
+        row = [i, f"{t:.6f}", f"{y:.6f}", f"{p:.6f}", f"{r:.6f}"]
+        if confidence is not None:
+            row.append(f"{float(confidence[i]):.2f}")
+        w.writerow(row)
     return atomic_write_text(path, buf.getvalue())
 
 

@@ -9,7 +9,10 @@
   intrinsics are those of the rotated frame).
 * :class:`VideoWriter` encodes frames to a temporary file next to the target and renames it into
   place only when everything succeeded, so an error or an interruption never leaves a
-  half-written video at the target path. It can copy the audio stream of a source video through.
+  half-written video at the target path. Given ``keep_from=`` a source video, it keeps what the
+  camera wrote: colour tags (primaries, transfer, matrix, range), the rotation flag, creation time
+  and other metadata, the timecode, every audio stream, and the data (telemetry) streams the
+  output container can carry (GoPro GPMF ``gpmd`` in MP4/MOV); see :class:`VideoWriter`.
 """
 
 from __future__ import annotations
@@ -32,6 +35,81 @@ _FIX_VIDEO = "give a video file FFmpeg can decode (e.g. MP4/H.264, MKV, WebM)"
 _TRUNCATED_OK: dict[Path, int] = {}  # truncated videos a caller accepted -> frames they really have
 
 
+# FFmpeg's enum values (libavutil/pixfmt.h) by the names ffprobe prints.
+# fmt: off
+_PRIMARIES = {"bt709": 1, "bt470m": 4, "bt470bg": 5, "smpte170m": 6, "smpte240m": 7, "film": 8, "bt2020": 9,
+              "smpte428": 10, "smpte431": 11, "smpte432": 12, "ebu3213": 22}
+_TRANSFER = {"bt709": 1, "gamma22": 4, "gamma28": 5, "smpte170m": 6, "smpte240m": 7, "linear": 8, "log100": 9,
+             "log316": 10, "iec61966-2-4": 11, "bt1361e": 12, "iec61966-2-1": 13, "bt2020-10": 14,
+             "bt2020-12": 15, "smpte2084": 16, "smpte428": 17, "arib-std-b67": 18}
+_MATRIX = {"gbr": 0, "bt709": 1, "fcc": 4, "bt470bg": 5, "smpte170m": 6, "smpte240m": 7, "ycgco": 8,
+           "bt2020nc": 9, "bt2020c": 10, "smpte2085": 11, "chroma-derived-nc": 12, "chroma-derived-c": 13,
+           "ictcp": 14}
+_RANGE = {"tv": 1, "pc": 2}
+# Luma weights (Kr, Kb) of the Y'CbCr matrices, for the writer's BGR -> YUV conversion.
+_KR_KB = {"bt709": (0.2126, 0.0722), "bt2020nc": (0.2627, 0.0593), "bt2020c": (0.2627, 0.0593),
+          "smpte240m": (0.212, 0.087), "fcc": (0.30, 0.11)}
+# fmt: on
+
+
+def _name_of(table: dict[str, int], value) -> str | None:
+    for name, v in table.items():
+        if v == int(value or 0):
+            return name
+    return None
+
+
+@dataclass(frozen=True)
+class ColourTags:
+    """How a video's pixel values are to be read: FFmpeg's names (as ffprobe prints them), ``None``
+    where the file does not say.
+
+    ``primaries`` (e.g. ``bt709``), ``transfer`` (``bt709``, ``smpte2084`` for HDR10 PQ,
+    ``arib-std-b67`` for HLG), ``matrix`` (the Y'CbCr matrix: ``bt709``, ``smpte170m``, ``bt2020nc``)
+    and ``range``: ``tv`` (limited, luma 16-235) or ``pc`` (full, 0-255; GoPro and many phones).
+    """
+
+    primaries: str | None = None
+    transfer: str | None = None
+    matrix: str | None = None
+    range: str | None = None
+
+    @classmethod
+    def of(cls, obj) -> ColourTags:
+        """The tags of a PyAV codec context or frame (anything with ``color_primaries``, ``color_trc``,
+        ``colorspace`` and ``color_range``)."""
+        rng = _name_of(_RANGE, obj.color_range)
+        fmt = getattr(getattr(obj, "format", None), "name", None) or getattr(obj, "pix_fmt", None) or ""
+        if rng is None and str(fmt).startswith("yuvj"):
+            rng = "pc"  # the deprecated yuvj formats are full range by definition
+        return cls(
+            _name_of(_PRIMARIES, obj.color_primaries),
+            _name_of(_TRANSFER, obj.color_trc),
+            _name_of(_MATRIX, obj.colorspace),
+            rng,
+        )
+
+    @property
+    def full_range(self) -> bool:
+        """True when luma spans 0-255 (``range == "pc"``)."""
+        return self.range == "pc"
+
+    def apply(self, target) -> None:
+        """Write the known tags into a PyAV codec context or frame (unknown ones stay unspecified)."""
+        for attr, table, name in (
+            ("color_primaries", _PRIMARIES, self.primaries),
+            ("color_trc", _TRANSFER, self.transfer),
+            ("colorspace", _MATRIX, self.matrix),
+            ("color_range", _RANGE, self.range),
+        ):
+            if name in table:
+                setattr(target, attr, table[name])
+
+    def to_dict(self) -> dict[str, str | None]:
+        """JSON-ready form."""
+        return {"primaries": self.primaries, "transfer": self.transfer, "matrix": self.matrix, "range": self.range}
+
+
 @dataclass(frozen=True)
 class VideoInfo:
     """What a video is, as needed by the rest of egovid.
@@ -39,7 +117,12 @@ class VideoInfo:
     ``width`` and ``height`` are in display orientation (after the rotation flag), in pixels.
     ``frame_count`` is the container's claim (or an estimate from the duration); the exact count
     comes from decoding, see :func:`iter_frames`. ``rotation`` is the container's display rotation
-    in degrees counter-clockwise.
+    in degrees counter-clockwise. ``colour`` holds the colour tags of the video stream,
+    ``pix_fmt`` its decoded pixel format (e.g. ``yuvj420p``), ``timecode`` the SMPTE start
+    timecode (``HH:MM:SS:FF``) where the camera wrote one, ``audio_streams`` the number of audio
+    streams and ``data_streams`` a description (handler name or codec) of each data stream, e.g.
+    ``("GoPro TCD", "GoPro MET", "GoPro SOS")`` for a GoPro's timecode, GPMF telemetry and
+    recovery tracks.
     """
 
     path: Path
@@ -52,6 +135,11 @@ class VideoInfo:
     codec: str
     has_audio: bool
     creation_time: str | None = None
+    colour: ColourTags = ColourTags()
+    pix_fmt: str = ""
+    timecode: str | None = None
+    audio_streams: int = 0
+    data_streams: tuple[str, ...] = ()
     truncated: bool = False  # cut short; frame_count and duration are then what is really there
 
 
@@ -208,10 +296,32 @@ def probe(path: str | os.PathLike, *, allow_truncated: bool = False) -> VideoInf
             codec=stream.codec_context.name,
             has_audio=bool(container.streams.audio),
             creation_time=container.metadata.get("creation_time") or stream.metadata.get("creation_time"),
+            **_stream_facts(container, stream, first),
             truncated=truncated is not None,
         )
     finally:
         container.close()
+
+
+def _stream_facts(container, stream, first: av.VideoFrame) -> dict:
+    """The :class:`VideoInfo` fields a writer needs to keep what the camera wrote."""
+    colour = ColourTags.of(first)
+    if colour == ColourTags():
+        colour = ColourTags.of(stream.codec_context)
+    timecode = stream.metadata.get("timecode") or container.metadata.get("timecode")
+    for s in container.streams.data:
+        timecode = timecode or s.metadata.get("timecode")
+    data = tuple(
+        (s.metadata.get("handler_name") or "").strip() or getattr(s, "name", None) or "data"
+        for s in container.streams.data
+    )
+    return {
+        "colour": colour,
+        "pix_fmt": first.format.name,
+        "timecode": timecode,
+        "audio_streams": len(container.streams.audio),
+        "data_streams": data,
+    }
 
 
 def _claimed_duration(container: av.container.InputContainer, stream: av.video.VideoStream) -> float | None:
@@ -335,8 +445,11 @@ def iter_frames(
     max_frames:
         Stop after this many frames.
 
-    Frames come in display orientation; ``time`` is the presentation time in seconds from the
-    first frame. Raises :class:`EgovidError` if the video is unreadable or stops decoding midway.
+    Frames come in display orientation and in presentation order (a small buffer reorders frames
+    a decoder hands out of order); ``time`` is the presentation time in seconds from the first
+    frame, from the timestamps (so variable frame rate is kept), made strictly increasing (a
+    repeated or backward timestamp becomes the previous one plus a nominal frame interval).
+    Raises :class:`EgovidError` if the video is unreadable or stops decoding midway.
     """
     if scale is not None and not (0.0 < scale <= 1.0):
         raise EgovidError(f"scale {scale} must be in (0, 1]", "use e.g. 0.5 for half size")
@@ -344,35 +457,123 @@ def iter_frames(
     try:
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"
-        fmt = "yuv420p" if i420 else ("gray" if gray else "bgr24")
-        t0: float | None = None
-        index = 0
+        rate = float(stream.average_rate or stream.guessed_rate or 30)
+        nominal = 1.0 / rate if rate > 0 else 1.0 / 30
+        tb = float(stream.time_base) if stream.time_base else None
+        reorder = _Reorder(_REORDER_DEPTH)
+        state = {"t0": None, "prev": None, "index": 0}
+
+        def emit(item) -> Frame:
+            t, img = item
+            if state["t0"] is None:
+                state["t0"] = t
+            t -= state["t0"]
+            if state["prev"] is not None and t <= state["prev"]:
+                t = state["prev"] + nominal
+            state["prev"] = t
+            frame = Frame(state["index"], t, img)
+            state["index"] += 1
+            return frame
+
+        decoded = 0
         try:
             for frame in _decoded(container, stream, path):
                 rotation = _rotation_of(frame)
                 if scale is not None and scale != 1.0:
                     sw = max(2, round(frame.width * scale))
                     sh = max(2, round(frame.height * scale))
-                    img = frame.to_ndarray(format=fmt, width=sw, height=sh, interpolation="AREA")
+                    img = frame.to_ndarray(format=_pixel_format(gray, i420), width=sw, height=sh, interpolation="AREA")
                 else:
-                    img = frame.to_ndarray(format=fmt)
+                    img = frame.to_ndarray(format=_pixel_format(gray, i420))
                 img = _rotate_i420(img, rotation) if i420 else _apply_rotation(img, rotation)
-                t = float(frame.time) if frame.time is not None else index / float(stream.average_rate or 30)
-                if t0 is None:
-                    t0 = t
-                yield Frame(index, t - t0, img)
-                index += 1
-                if max_frames is not None and index >= max_frames:
-                    return
+                pts = frame.pts if frame.pts is not None else frame.dts
+                t = float(pts * tb) if (pts is not None and tb) else decoded * nominal
+                decoded += 1
+                for item in reorder.push(t, img):
+                    yield emit(item)
+                    if max_frames is not None and state["index"] >= max_frames:
+                        return
         except av.error.FFmpegError as exc:
             raise EgovidError(
-                f"{path} stops decoding at frame {index} ({_ffmpeg_reason(exc)})",
+                f"{path} stops decoding at frame {decoded} ({_ffmpeg_reason(exc)})",
                 "the file is corrupt or truncated; re-export or repair it",
             ) from None
-        if index == 0:
+        for item in reorder.flush():
+            yield emit(item)
+            if max_frames is not None and state["index"] >= max_frames:
+                return
+        if state["index"] == 0:
             raise EgovidError(f"video {path} has no frames", _FIX_VIDEO)
     finally:
         container.close()
+
+
+#: Frames held back to put a decoder's output into presentation order.
+_REORDER_DEPTH = 4
+
+
+def _pixel_format(gray: bool, i420: bool) -> str:
+    """PyAV pixel format of :func:`iter_frames`' options."""
+    return "yuv420p" if i420 else ("gray" if gray else "bgr24")
+
+
+class _Reorder:
+    """A small min-heap on presentation time: frames leave in time order, ``depth`` behind."""
+
+    def __init__(self, depth: int) -> None:
+        self.depth = depth
+        self.heap: list = []
+        self.seq = 0
+
+    def push(self, t: float, img: np.ndarray):
+        import heapq
+
+        heapq.heappush(self.heap, (t, self.seq, img))
+        self.seq += 1
+        while len(self.heap) > self.depth:
+            t, _, img = heapq.heappop(self.heap)
+            yield t, img
+
+    def flush(self):
+        import heapq
+
+        while self.heap:
+            t, _, img = heapq.heappop(self.heap)
+            yield t, img
+
+
+def frame_times(path: str | os.PathLike) -> np.ndarray:
+    """Presentation times (N,) in seconds of every frame, from the first, without decoding
+    (demuxing only; sorted, so B-frames are in presentation order; repeated or backward times
+    follow :func:`iter_frames`' rule)."""
+    container = _open(path)
+    try:
+        stream = container.streams.video[0]
+        rate = float(stream.average_rate or stream.guessed_rate or 30)
+        nominal = 1.0 / rate if rate > 0 else 1.0 / 30
+        tb = float(stream.time_base) if stream.time_base else nominal
+        pts = []
+        cut = Path(path).resolve() in _TRUNCATED_OK  # a truncated file the caller accepted
+        size = Path(path).stat().st_size
+        for packet in container.demux(stream):
+            if packet.size == 0:
+                continue
+            if cut and _packet_cut(packet, size):
+                break
+            p = packet.pts if packet.pts is not None else packet.dts
+            pts.append(len(pts) * nominal / tb if p is None else p)
+    except av.error.FFmpegError as exc:
+        raise EgovidError(f"{path} cannot be read ({_ffmpeg_reason(exc)})", _FIX_VIDEO) from None
+    finally:
+        container.close()
+    t = np.sort(np.asarray(pts, float)) * tb
+    if len(t) == 0:
+        raise EgovidError(f"video {path} has no frames", _FIX_VIDEO)
+    t -= t[0]
+    for k in range(1, len(t)):
+        if t[k] <= t[k - 1]:
+            t[k] = t[k - 1] + nominal
+    return t
 
 
 def read_frames(path: str | os.PathLike, **kwargs) -> tuple[np.ndarray, np.ndarray]:
@@ -407,12 +608,45 @@ def _fps_fraction(fps: float) -> Fraction:
     return Fraction(fps).limit_denominator(1001)
 
 
+def _bgr_to_i420(image: np.ndarray, colour: ColourTags) -> np.ndarray:
+    """BGR uint8 -> one (H*3/2, W) I420 array with the Y'CbCr matrix and range of ``colour``
+    (BT.601 limited range where the tags do not say, as FFmpeg assumes)."""
+    kr_kb = _KR_KB.get(colour.matrix or "")
+    if kr_kb is None and not colour.full_range:
+        # OpenCV's BT.601 limited-range conversion matches swscale's to ±1 and is ~10x faster.
+        return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2YUV_I420)
+    kr, kb = kr_kb or (0.299, 0.114)
+    kg = 1.0 - kr - kb
+    ys, cs, off = (255.0, 255.0, 0.0) if colour.full_range else (219.0, 224.0, 16.0)
+    y = np.array([kb, kg, kr]) * ys / 255.0
+    cb = (np.array([1.0, 0.0, 0.0]) - np.array([kb, kg, kr])) / (2 * (1 - kb)) * cs / 255.0
+    cr = (np.array([0.0, 0.0, 1.0]) - np.array([kb, kg, kr])) / (2 * (1 - kr)) * cs / 255.0
+    m = np.array([[*y, off], [*cb, 128.0], [*cr, 128.0]], np.float32)
+    ycc = cv2.transform(np.ascontiguousarray(image), m)  # uint8, rounded and saturated
+    h, w = image.shape[:2]
+    out = np.empty((h * 3 // 2, w), np.uint8)
+    out[:h] = ycc[..., 0]
+    half = cv2.resize(ycc, (w // 2, h // 2), interpolation=cv2.INTER_AREA)  # 2x2 means
+    flat = out[h:].reshape(-1)
+    flat[: half.shape[0] * half.shape[1]] = half[..., 1].ravel()
+    flat[half.shape[0] * half.shape[1] :] = half[..., 2].ravel()
+    return out
+
+
+def _rotate_back(image: np.ndarray, rotation: int, i420: bool) -> np.ndarray:
+    """Display orientation -> the coded orientation of a video whose rotation flag is ``rotation``."""
+    return _rotate_i420(image, -rotation) if i420 else _apply_rotation(image, -rotation)
+
+
 class VideoWriter:
-    """Encode BGR frames to ``path``, atomically.
+    """Encode frames to ``path``, atomically.
 
     Frames go to a hidden temporary file in the target's folder; :meth:`close` (or leaving the
     ``with`` block normally) renames it to ``path``. An exception inside the ``with`` block, or
     :meth:`abort`, deletes the temporary file and leaves ``path`` untouched.
+
+    ``width``, ``height`` and the frames given to :meth:`write` / :meth:`write_i420` are in display
+    orientation (as :func:`iter_frames` yields them).
 
     Parameters
     ----------
@@ -420,9 +654,21 @@ class VideoWriter:
         ``libx264`` (default, MP4), ``ffv1`` (lossless, use an ``.mkv`` path), ``libvpx-vp9``...
     crf:
         Constant rate factor for x264/VP9 (lower = better quality).
+    colour:
+        Colour tags written into the stream; :meth:`write` converts BGR with their matrix and
+        range (BT.601 limited range where unknown), :meth:`write_i420` takes the planes as they are.
+    rotation:
+        Display rotation flag (degrees counter-clockwise, as :attr:`VideoInfo.rotation`): frames
+        are stored turned back to the coded orientation and the flag is set, like the camera did.
+    keep_from:
+        A source video whose camera-written facts are kept: colour tags and rotation (unless given
+        here), container and video-stream metadata (creation time, ...), the timecode (MP4/MOV
+        write it as a ``tmcd`` track), every audio stream, and each data stream the output
+        container can carry (GoPro GPMF telemetry in MP4/MOV), interleaved by timestamp, shifted
+        like the video so that both start at 0. :attr:`kept` and :attr:`dropped` say what was
+        and was not carried over.
     audio_from:
-        A source video whose audio stream (if any) is copied into the output unchanged,
-        interleaved by timestamp.
+        A source video whose audio streams (only) are copied.
     metadata_from:
         A source video whose container metadata (creation time, etc.) is copied.
     """
@@ -439,6 +685,9 @@ class VideoWriter:
         preset: str | None = "veryfast",
         pix_fmt: str | None = None,
         threads: int = 0,
+        colour: ColourTags | None = None,
+        rotation: int | None = None,
+        keep_from: str | os.PathLike | None = None,
         audio_from: str | os.PathLike | None = None,
         metadata_from: str | os.PathLike | None = None,
         options: dict[str, str] | None = None,
@@ -448,20 +697,38 @@ class VideoWriter:
             raise EgovidError(f"output folder {self.path.parent} does not exist", "create it first")
         if fps <= 0 or not np.isfinite(fps):
             raise EgovidError(f"frame rate {fps} is not positive", "give a frame rate such as 30")
+        src_info = probe(keep_from, allow_truncated=True) if keep_from is not None else None
+        if src_info is not None:
+            colour = src_info.colour if colour is None else colour
+            rotation = src_info.rotation if rotation is None else rotation
+        self.colour = colour or ColourTags()
+        self.rotation = int(rotation or 0) % 360
+        if self.rotation % 90:
+            raise EgovidError(f"rotation {rotation}° is not a multiple of 90", "use 0, 90, 180 or 270")
+        self.kept: list[str] = []
+        self.dropped: list[str] = []
         self.width, self.height = int(width), int(height)
+        coded_w, coded_h = (self.height, self.width) if self.rotation in (90, 270) else (self.width, self.height)
         self.fps = float(fps)
         self._tmp = track_temp(temp_sibling(self.path))
-        self._container = av.open(str(self._tmp), mode="w")
+        mov = self.path.suffix.lower() in (".mp4", ".mov", ".m4v")
+        # MP4/MOV keep only standard metadata keys unless told to write the others (e.g. firmware).
+        muxer_opts = {"movflags": "use_metadata_tags"} if keep_from is not None and mov else {}
+        self._container = av.open(str(self._tmp), mode="w", options=muxer_opts)
         rate = _fps_fraction(fps)
         self._stream = self._container.add_stream(codec, rate=rate)
-        self._stream.width = self.width
-        self._stream.height = self.height
+        self._stream.width = coded_w
+        self._stream.height = coded_h
         if pix_fmt is None:
             pix_fmt = "bgr0" if codec == "ffv1" else "yuv420p"
             if pix_fmt == "yuv420p" and (self.width % 2 or self.height % 2):
                 pix_fmt = "yuv444p"
         self._stream.pix_fmt = pix_fmt
         self._i420 = pix_fmt == "yuv420p"
+        if self._i420:
+            self.colour.apply(self._stream.codec_context)
+        if self.rotation:
+            self._stream.set_display_rotation(self.rotation)
         # A fine time base keeps variable frame timing exactly (1/rate would round it).
         self._stream.time_base = Fraction(1, 90000)
         self._stream.codec_context.time_base = Fraction(1, 90000)
@@ -479,20 +746,74 @@ class VideoWriter:
             self._stream.codec_context.thread_count = threads
         self._count = 0
         self._last_pts = -1
-        self._audio = None
+        self._passthrough: _Passthrough | None = None
         self._closed = False
-        if metadata_from is not None:
-            with contextlib.suppress(Exception), av.open(str(metadata_from)) as src:
-                for k, v in src.metadata.items():
-                    if k.lower() not in ("encoder", "major_brand", "minor_version", "compatible_brands"):
-                        self._container.metadata[k] = v
-        if audio_from is not None:
-            self._audio = _AudioPassthrough(audio_from, self._container)
+        try:
+            if src_info is not None:
+                self._keep(keep_from, src_info)
+            else:
+                if metadata_from is not None:
+                    self._copy_metadata(metadata_from)
+                if audio_from is not None:
+                    self._passthrough = _Passthrough(audio_from, self._container, data=False)
+        except BaseException:
+            self.abort()
+            raise
+
+    def _copy_metadata(self, source: str | os.PathLike) -> None:
+        with contextlib.suppress(Exception), av.open(str(source)) as src:
+            for k, v in src.metadata.items():
+                if k.lower() not in ("encoder", "major_brand", "minor_version", "compatible_brands"):
+                    self._container.metadata[k] = v
+
+    def _keep(self, source: str | os.PathLike, info: VideoInfo) -> None:
+        self._copy_metadata(source)
+        with av.open(str(source)) as src:
+            for k, v in src.streams.video[0].metadata.items():
+                if k.lower() in ("creation_time", "language", "timecode"):
+                    self._stream.metadata[k] = v
+        if info.colour != ColourTags():
+            self.kept.append("colour tags " + "/".join(v or "?" for v in info.colour.to_dict().values()))
+        if info.rotation:
+            self.kept.append(f"rotation {info.rotation}°")
+        if info.creation_time:
+            self.kept.append(f"creation time {info.creation_time}")
+        fmt = self._container.format.name
+        mov = any(f in fmt.split(",") for f in ("mp4", "mov"))
+        if info.timecode:
+            self._stream.metadata["timecode"] = info.timecode
+            (self.kept if mov else self.dropped).append(f"timecode {info.timecode}")
+        self._passthrough = _Passthrough(source, self._container, data=True)
+        self.kept += self._passthrough.kept
+        self.dropped += self._passthrough.dropped
+
+    @property
+    def container(self) -> av.container.OutputContainer:
+        """The output container, for a caller adding streams of its own (before the first frame)."""
+        return self._container
 
     @property
     def frames_written(self) -> int:
         """Number of frames written so far."""
         return self._count
+
+    def _next_pts(self, time: float | None) -> tuple[int, float]:
+        if time is None:
+            time = self._count / self.fps
+        pts = max(round(time / self._stream.time_base), self._last_pts + 1)
+        self._last_pts = pts
+        return pts, time
+
+    def _encode(self, frame: av.VideoFrame, pts: int, time: float) -> None:
+        frame.pts = pts
+        frame.time_base = self._stream.time_base
+        if self._i420:
+            self.colour.apply(frame)
+        for packet in self._stream.encode(frame):
+            self._container.mux(packet)
+        self._count += 1
+        if self._passthrough is not None:
+            self._passthrough.feed_until(time)
 
     def write(self, image: np.ndarray, time: float | None = None) -> None:
         """Append one HxWx3 BGR uint8 frame shown at ``time`` seconds (default: index / fps)."""
@@ -502,43 +823,25 @@ class VideoWriter:
                 f"{self.width}x{self.height}",
                 "resize frames before writing",
             )
-        if time is None:
-            time = self._count / self.fps
-        tb = self._stream.time_base
-        pts = round(time / tb)
-        if pts <= self._last_pts:
-            pts = self._last_pts + 1
-        self._last_pts = pts
+        pts, time = self._next_pts(time)
         if self._i420:
-            # OpenCV's BT.601 limited-range conversion matches swscale's to ±1 and is ~10x faster.
-            yuv = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2YUV_I420)
+            yuv = _rotate_back(_bgr_to_i420(image, self.colour), self.rotation, True)
             frame = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
         else:
-            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="bgr24")
-        frame.pts = pts
-        frame.time_base = tb
-        for packet in self._stream.encode(frame):
-            self._container.mux(packet)
-        self._count += 1
-        if self._audio is not None:
-            self._audio.feed_until(time)
+            frame = av.VideoFrame.from_ndarray(
+                np.ascontiguousarray(_rotate_back(image, self.rotation, False)), format="bgr24"
+            )
+        self._encode(frame, pts, time)
 
     def write_i420(self, frame: np.ndarray, time: float | None = None) -> None:
         """Append one I420 frame ((h*3/2, w) uint8, as decoded) without any colour conversion, so a
-        lossless codec (FFV1, or x264 at ``options={'qp': '0'}``) stores it bit for bit."""
+        lossless codec (FFV1, or x264 at ``options={'qp': '0'}``) stores it bit for bit; the
+        planes are read with the writer's :attr:`colour` tags (e.g. full range)."""
         if frame.shape != (self.height * 3 // 2, self.width) or not self._i420:
             raise EgovidError("I420 frames need a yuv420p writer of the same size", "check the frame size")
-        if time is None:
-            time = self._count / self.fps
-        tb = self._stream.time_base
-        pts = max(round(time / tb), self._last_pts + 1)
-        self._last_pts = pts
-        vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="yuv420p")
-        vf.pts = pts
-        vf.time_base = tb
-        for packet in self._stream.encode(vf):
-            self._container.mux(packet)
-        self._count += 1
+        pts, time = self._next_pts(time)
+        yuv = np.ascontiguousarray(_rotate_back(frame, self.rotation, True))
+        self._encode(av.VideoFrame.from_ndarray(yuv, format="yuv420p"), pts, time)
 
     def close(self) -> Path:
         """Flush the encoder, finish the file and move it to ``path``."""
@@ -547,9 +850,9 @@ class VideoWriter:
         try:
             for packet in self._stream.encode():
                 self._container.mux(packet)
-            if self._audio is not None:
-                self._audio.feed_until(float("inf"))
-                self._audio.close()
+            if self._passthrough is not None:
+                self._passthrough.feed_until(float("inf"))
+                self._passthrough.close()
             self._container.close()
         except BaseException:
             self.abort()
@@ -573,8 +876,8 @@ class VideoWriter:
             return
         self._closed = True
         with contextlib.suppress(Exception):
-            if self._audio is not None:
-                self._audio.close()
+            if self._passthrough is not None:
+                self._passthrough.close()
         with contextlib.suppress(Exception):
             self._container.close()
         self._tmp.unlink(missing_ok=True)
@@ -590,46 +893,82 @@ class VideoWriter:
             self.abort()
 
 
-class _AudioPassthrough:
-    """Copies the audio packets of a source file into an output container, interleaved by time."""
+def _muxable(stream: av.stream.Stream, fmt: str, packet: av.Packet | None) -> bool:
+    """Whether a container of format ``fmt`` can carry a copy of ``stream`` (tried in memory)."""
+    import io
 
-    def __init__(self, source: str | os.PathLike, out: av.container.OutputContainer) -> None:
+    buf = io.BytesIO()
+    try:
+        with av.open(buf, "w", format=fmt) as out:
+            o = out.add_stream_from_template(stream)
+            if packet is not None:
+                packet.stream = o
+                out.mux(packet)
+        return True
+    except Exception:
+        return False
+
+
+class _Passthrough:
+    """Copies the audio (and, with ``data=True``, the data) packets of a source file into an output
+    container, interleaved by time and shifted by the source video's start time."""
+
+    def __init__(self, source: str | os.PathLike, out: av.container.OutputContainer, *, data: bool) -> None:
+        self.kept: list[str] = []
+        self.dropped: list[str] = []
         self._src = av.open(str(source))
-        self._in = self._src.streams.audio[0] if self._src.streams.audio else None
-        self._out_stream = out.add_stream_from_template(self._in) if self._in is not None else None
         self._out = out
-        self._packets = self._src.demux(self._in) if self._in is not None else iter(())
-        self._pending = None
-        self._t0 = None
+        self._map: dict[int, av.stream.Stream] = {}
+        fmt = out.format.name.split(",")[0]
+        for s in self._src.streams:
+            if s.type == "audio":
+                self._map[s.index] = out.add_stream_from_template(s)
+                self.kept.append(f"audio ({s.codec_context.name})")
+            elif s.type == "data" and data:
+                what = (s.metadata.get("handler_name") or "").strip() or getattr(s, "name", None) or "data"
+                first = next((p for p in self._src.demux(s) if p.size), None)
+                self._src.seek(0)
+                if first is not None and _muxable(s, fmt, first):
+                    o = out.add_stream_from_template(s)
+                    for k, v in s.metadata.items():
+                        o.metadata[k] = v
+                    self._map[s.index] = o
+                    self.kept.append(f"data stream {what!r}")
+                elif not s.metadata.get("timecode"):  # a timecode track is rewritten from the video's tag
+                    self.dropped.append(f"data stream {what!r} ({fmt} cannot carry it)" if first else f"empty {what!r}")
+        streams = [s for s in self._src.streams if s.index in self._map]
+        self._packets = self._src.demux(*streams) if streams else iter(())
+        self._pending: av.Packet | None = None
+        self._done = not streams
+        self._t0 = 0.0
         vs = self._src.streams.video
         if vs and vs[0].start_time is not None and vs[0].time_base is not None:
             self._t0 = float(vs[0].start_time * vs[0].time_base)
 
     def feed_until(self, t: float) -> None:
-        if self._in is None:
-            return
-        while True:
+        """Mux source packets up to ``t`` + 0.5 seconds (output time)."""
+        while not self._done:
             pkt = self._pending
             self._pending = None
             if pkt is None:
                 try:
                     pkt = next(self._packets)
                 except StopIteration:
-                    self._in = None
+                    self._done = True
                     return
-            if pkt.dts is None and pkt.pts is None:
+            if (pkt.dts is None and pkt.pts is None) or pkt.stream.index not in self._map:
                 continue
-            shift = round((self._t0 or 0.0) / pkt.time_base)
             pts = pkt.pts if pkt.pts is not None else pkt.dts
-            if float(pts * pkt.time_base) - (self._t0 or 0.0) > t + 0.5:
+            if float(pts * pkt.time_base) - self._t0 > t + 0.5:
                 self._pending = pkt
                 return
+            shift = round(self._t0 / pkt.time_base)
             if shift:
                 if pkt.pts is not None:
                     pkt.pts -= shift
                 if pkt.dts is not None:
                     pkt.dts -= shift
-            pkt.stream = self._out_stream
+            pkt.stream = self._map[pkt.stream.index]
             self._out.mux(pkt)
 
     def close(self) -> None:

@@ -28,27 +28,40 @@ from egovid.metrics.itf import ITFAccumulator
 DEFAULT_CAP_DB = 60.0
 
 
+def _homographies(R_gt: np.ndarray, R_est: np.ndarray, intr: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """(H (N,3,3): picture -> stabilised frame, H_stab (N,3,3): camera frame -> stabilised frame)."""
+    K, Ki = intr.K, intr.K_inv
+    H_stab = K @ R_est @ Ki  # frame -> stabilised (undo the estimate)
+    H_move = K @ np.swapaxes(R_gt, -1, -2) @ Ki  # picture -> frame seen after the true rotation
+    return H_stab @ H_move, H_stab
+
+
+def _inside(H: np.ndarray, w: int, h: int) -> np.ndarray:
+    """Pixels of the w x h output whose inverse image under ``H`` lies in the w x h source (an
+    all-ones image warped with nearest-neighbour sampling)."""
+    ones = np.full((h, w), 255, np.uint8)
+    return cv2.warpPerspective(ones, H, (w, h), flags=cv2.INTER_NEAREST) > 127
+
+
+def content_masks(R_gt: np.ndarray, R_est: np.ndarray, intr: Intrinsics) -> list[np.ndarray]:
+    """Per stabilised frame, the pixels that show the picture and lie inside the camera frame of
+    step one (eq. 21.19, from the homographies, never from pixel colour)."""
+    w, h = intr.width, intr.height
+    H, H_stab = _homographies(R_gt, R_est, intr)
+    return [_inside(Hk, w, h) & _inside(Sk, w, h) for Hk, Sk in zip(H, H_stab, strict=True)]
+
+
 def stabilised_frames(
-    image: np.ndarray, R_gt: np.ndarray, R_est: np.ndarray, intr: Intrinsics
+    image: np.ndarray, R_gt: np.ndarray, R_est: np.ndarray, intr: Intrinsics, masks: list[np.ndarray] | None = None
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Grey stabilised frames and their content masks for one picture (resized to the frame)."""
     w, h = intr.width, intr.height
     img = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-    K, Ki = intr.K, intr.K_inv
-    ones = np.full((h, w), 255, np.uint8)
-    frames, masks = [], []
-    for Rg, Re in zip(R_gt, R_est, strict=True):
-        H_move = K @ Rg.T @ Ki  # I -> frame seen after the true rotation
-        H_stab = K @ Re @ Ki  # frame -> stabilised (undo the estimate)
-        H = H_stab @ H_move
-        out = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        in_image = cv2.warpPerspective(ones, H, (w, h), flags=cv2.INTER_NEAREST) > 127
-        in_frame = cv2.warpPerspective(ones, H_stab, (w, h), flags=cv2.INTER_NEAREST) > 127
-        frames.append(out)
-        masks.append(in_image & in_frame)
-    return frames, masks
+    H, _ = _homographies(R_gt, R_est, intr)
+    frames = [cv2.warpPerspective(img, Hk, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT) for Hk in H]
+    return frames, masks if masks is not None else content_masks(R_gt, R_est, intr)
 
 
 def _itf(frames, masks, order, cap_db) -> float:
@@ -72,8 +85,9 @@ def visual_errors(
     R_est = np.swapaxes(R_est[0], -1, -2) @ R_est
     order = np.random.default_rng(seed).permutation(len(R_gt))
     oitf, ritf = [], []
+    masks = content_masks(R_gt, R_est, intr)  # the same for every picture
     for img in images:
-        frames, masks = stabilised_frames(img, R_gt, R_est, intr)
+        frames, _ = stabilised_frames(img, R_gt, R_est, intr, masks)
         oitf.append(_itf(frames, masks, range(len(frames)), cap_db))
         ritf.append(_itf(frames, masks, order, cap_db))
     return float(np.nanmean(oitf)), float(np.nanmean(ritf))

@@ -68,8 +68,11 @@ class FeatureExtractor:
 
 
 class Matcher:
-    """Approximate nearest-neighbour matching (FLANN: LSH for binary, KD-trees for float
-    descriptors) with Lowe's ratio test. Safe to call from several threads."""
+    """Brute-force nearest-neighbour matching (Hamming distance for binary, L2 for float
+    descriptors) with Lowe's ratio test. Exact and deterministic: the same descriptors always give
+    the same matches, whatever thread runs it (FLANN's LSH index draws random hash functions from
+    the process-wide C ``rand()``, so its matches changed with thread timing). Safe to call from
+    several threads."""
 
     def __init__(self, binary: bool, ratio: float = 0.8) -> None:
         import threading
@@ -81,11 +84,7 @@ class Matcher:
     def _matcher(self) -> cv2.DescriptorMatcher:
         m = getattr(self._local, "m", None)
         if m is None:
-            if self.binary:
-                index = {"algorithm": 6, "table_number": 6, "key_size": 12, "multi_probe_level": 1}
-            else:
-                index = {"algorithm": 1, "trees": 4}
-            m = cv2.FlannBasedMatcher(index, {"checks": 32})
+            m = cv2.BFMatcher(cv2.NORM_HAMMING if self.binary else cv2.NORM_L2)
             self._local.m = m
         return m
 

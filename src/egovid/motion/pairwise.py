@@ -30,6 +30,10 @@ import cv2
 import numpy as np
 
 MIN_INLIERS = 12
+#: Matches the joint rotation + translation refinement uses at most.
+ESSENTIAL_POINTS = 200
+#: Iterations of that refinement at most.
+ESSENTIAL_MAX_ITERATIONS = 15
 
 
 @dataclass
@@ -127,9 +131,14 @@ def _translation_given(Q: np.ndarray, bi: np.ndarray, bj: np.ndarray) -> np.ndar
 def _refine_essential(
     Q0: np.ndarray, t0: np.ndarray, xi: np.ndarray, xj: np.ndarray, focal: float, scale_px: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Joint (rotation, translation direction) refinement of the Sampson error (robust)."""
-    from scipy.optimize import least_squares
+    """Joint (rotation, translation direction) refinement of the Sampson error (robust).
 
+    Levenberg-Marquardt on 5 parameters (a rotation vector on ``Q0`` and two coordinates of the
+    translation direction in the tangent plane of ``t0``) with the soft-L1 loss of scale
+    ``scale_px`` by iteratively reweighted least squares, and a forward-difference Jacobian: the
+    same problem SciPy's ``least_squares(loss="soft_l1")`` solves, without its per-iteration
+    overhead (this refinement was the most expensive step of a pair).
+    """
     # Translation direction on the sphere: t = normalise(t0 + a*u + b*v) with u, v ⟂ t0.
     u = np.cross(t0, [1.0, 0.0, 0.0] if abs(t0[0]) < 0.9 else [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
@@ -143,8 +152,38 @@ def _refine_essential(
         Q, t = unpack(p)
         return sampson_px(Q, t, xi, xj, focal)
 
-    sol = least_squares(fun, np.zeros(5), loss="soft_l1", f_scale=scale_px, x_scale=1e-3, max_nfev=60)
-    return unpack(sol.x)
+    def cost(r: np.ndarray) -> float:
+        z = (r / scale_px) ** 2
+        return float(np.sum(2.0 * (np.sqrt(1.0 + z) - 1.0)))
+
+    p = np.zeros(5)
+    r = fun(p)
+    c = cost(r)
+    lam = 1e-3
+    h = 1e-7
+    for _ in range(ESSENTIAL_MAX_ITERATIONS):
+        J = np.empty((len(r), 5))
+        for k in range(5):
+            dp = p.copy()
+            dp[k] += h
+            J[:, k] = (fun(dp) - r) / h
+        w = 1.0 / np.sqrt(1.0 + (r / scale_px) ** 2)  # IRLS weights of the soft-L1 loss
+        A = (J * w[:, None]).T @ J
+        g = (J * w[:, None]).T @ r
+        while True:
+            step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
+            r_new = fun(p + step)
+            c_new = cost(r_new)
+            if c_new <= c or lam > 1e6:
+                break
+            lam *= 10.0
+        if c_new > c:
+            break
+        p, r, c = p + step, r_new, c_new
+        lam = max(lam / 10.0, 1e-9)
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    return unpack(p)
 
 
 def _information(Q: np.ndarray, bj: np.ndarray, sigma_rad: float) -> np.ndarray:
@@ -175,8 +214,12 @@ def refine_by_prewarp(
     remaining displacement is small and free of rotation and perspective distortion; Lucas-Kanade
     then measures it to a few hundredths of a pixel, and the result is mapped back into frame j.
     ORB keypoints alone sit on whole pixels of their pyramid level; this step cuts the pairwise
-    rotation error about five-fold, at distance 5 as at distance 1.
+    rotation error about five-fold, at distance 5 as at distance 1. Returns empty (0, 2) arrays
+    when no point survives.
     """
+    empty = np.zeros((0, 2))
+    if len(pi) == 0:
+        return empty, empty
     H = K @ Q @ np.linalg.inv(K)  # frame j pixels -> frame i pixels
     h, w = img_i.shape[:2]
     warped = cv2.warpPerspective(img_j, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
@@ -191,48 +234,71 @@ def refine_by_prewarp(
         flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
         criteria=_LK_CRITERIA,
     )
+    if p1 is None or status is None:
+        return empty, empty
     p1 = p1.reshape(-1, 2).astype(np.float64)
-    ok = (status.ravel() == 1) & (np.linalg.norm(p1 - pi, axis=1) < 3.0)
+    ok = (status.ravel() == 1) & np.all(np.isfinite(p1), axis=1) & (np.linalg.norm(p1 - pi, axis=1) < 3.0)
     margin = 8
     ok &= (p1[:, 0] > margin) & (p1[:, 0] < w - margin) & (p1[:, 1] > margin) & (p1[:, 1] < h - margin)
     back = np.column_stack([p1[ok], np.ones(int(ok.sum()))]) @ np.linalg.inv(H).T
-    return pi[ok], back[:, :2] / back[:, 2:3]
+    good = np.abs(back[:, 2]) > 1e-9
+    return pi[ok][good], back[good, :2] / back[good, 2:3]
 
 
-def relative_rotation(
+def correspondences(
     pts_i: np.ndarray,
     pts_j: np.ndarray,
     K: np.ndarray,
     *,
     threshold_px: float = 1.0,
     images: tuple[np.ndarray, np.ndarray] | None = None,
-) -> PairRotation:
-    """Estimate ``Q = R_i.T R_j`` from matched pixels ``pts_i`` (frame i) and ``pts_j`` (frame j).
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The matches of a frame pair that a rotation explains, refined to sub-pixel accuracy.
 
-    ``K`` is the camera matrix of the images the points were found in; ``threshold_px`` the
-    inlier distance in those pixels. With ``images = (grey_i, grey_j)`` the matches are refined
-    to sub-pixel accuracy (:func:`refine_by_prewarp`) before the final fit.
+    ``pts_i``, ``pts_j`` (M, 2) matched pixels; a RANSAC homography (seeded: identical results
+    on every run) finds the consistent ones, and with ``images = (grey_i, grey_j)`` they are
+    refined by :func:`refine_by_prewarp`. Returns ``(pi, pj)`` (n, 2) float64 pixels, or None
+    when fewer than :data:`MIN_INLIERS` survive. The result does not depend on ``K`` beyond the
+    pre-warp, so a pair can be re-fitted later with another focal length.
     """
-    n = len(pts_i)
-    if n < MIN_INLIERS:
-        return _failed(0, n)
+    if len(pts_i) < MIN_INLIERS or len(pts_i) != len(pts_j):
+        return None
     pi = np.ascontiguousarray(pts_i, dtype=np.float64)
     pj = np.ascontiguousarray(pts_j, dtype=np.float64)
+    finite = np.all(np.isfinite(pi), axis=1) & np.all(np.isfinite(pj), axis=1)
+    pi, pj = pi[finite], pj[finite]
+    if len(pi) < MIN_INLIERS:
+        return None
+    cv2.setRNGSeed(12345)
     Q = _coarse_rotation(pi, pj, K, 2.0 * threshold_px)
     if Q is None:
-        return _failed(0, n)
+        return None
+    keep = rotation_residuals(Q, pj, pi, K) < 4.0 * threshold_px
+    if keep.sum() < MIN_INLIERS:
+        return None
+    pi, pj = pi[keep], pj[keep]
     if images is not None:
-        r = rotation_residuals(Q, pj, pi, K)
-        keep = r < 4.0 * threshold_px
-        pi, pj = refine_by_prewarp(images[0], images[1], pi[keep], Q, K)
-        n = len(pi)
-        if n < MIN_INLIERS:
-            return _failed(n, n)
+        pi, pj = refine_by_prewarp(images[0], images[1], pi, Q, K)
+        if len(pi) < MIN_INLIERS:
+            return None
+    return pi, pj
+
+
+def rotation_from_correspondences(
+    pi: np.ndarray, pj: np.ndarray, K: np.ndarray, *, threshold_px: float = 1.0
+) -> PairRotation:
+    """Estimate ``Q = R_i.T R_j`` from correspondences ``pi`` (frame i) and ``pj`` (frame j),
+    (n, 2) pixels of images with camera matrix ``K`` (see the module docstring for the two
+    models). A pair that cannot be fitted comes back with ``ok = False``."""
+    n = len(pi)
+    if n < MIN_INLIERS:
+        return _failed(n, n)
     K_inv = np.linalg.inv(K)
     focal = 0.5 * (K[0, 0] + K[1, 1])
     bi, bj = bearings(pi, K_inv), bearings(pj, K_inv)
     xi = np.column_stack([pi, np.ones(n)]) @ K_inv.T
     xj = np.column_stack([pj, np.ones(n)]) @ K_inv.T
+    Q = kabsch(bj, bi)
     inl = rotation_residuals(Q, pj, pi, K) < 2.0 * threshold_px
     if inl.sum() < MIN_INLIERS:
         return _failed(int(inl.sum()), n)
@@ -255,7 +321,15 @@ def relative_rotation(
     if loose.sum() - n_rot < max(8, 0.05 * n_rot):
         return rot
     t = _translation_given(Q, bi[loose], bj[loose])
-    Qe, te = _refine_essential(Q, t, xi[loose], xj[loose], focal, max(res_rot, 0.05))
+    # The 5-parameter refinement runs on at most ESSENTIAL_POINTS of the loose matches (an even
+    # stride through them, deterministic): it decides the model and starts from the rotation fit,
+    # so a few hundred points suffice, and it was the most expensive step of a pair.
+    sub = np.flatnonzero(loose)
+    sub = sub[np.linspace(0, len(sub) - 1, min(len(sub), ESSENTIAL_POINTS)).astype(int)]
+    try:
+        Qe, te = _refine_essential(Q, t, xi[sub], xj[sub], focal, max(res_rot, 0.05))
+    except (ValueError, np.linalg.LinAlgError):
+        return rot
     d = np.abs(sampson_px(Qe, te, xi, xj, focal))
     e_inl = d < min(threshold_px, max(4.0 * res_rot, 0.1))
     n_ess = int(e_inl.sum())
@@ -265,3 +339,25 @@ def relative_rotation(
     # Epipolar distances constrain one direction per point: half the rotation information.
     info = 0.5 * _information(Qe, bj[e_inl], max(res_e, 0.02) / focal)
     return PairRotation(Qe, n_ess, n, "essential", True, info, res_e)
+
+
+def relative_rotation(
+    pts_i: np.ndarray,
+    pts_j: np.ndarray,
+    K: np.ndarray,
+    *,
+    threshold_px: float = 1.0,
+    images: tuple[np.ndarray, np.ndarray] | None = None,
+) -> PairRotation:
+    """Estimate ``Q = R_i.T R_j`` from matched pixels ``pts_i`` (frame i) and ``pts_j`` (frame j):
+    :func:`correspondences` then :func:`rotation_from_correspondences`.
+
+    ``K`` is the camera matrix of the images the points were found in; ``threshold_px`` the
+    inlier distance in those pixels. With ``images = (grey_i, grey_j)`` the matches are refined
+    to sub-pixel accuracy (:func:`refine_by_prewarp`) before the final fit. Never raises on
+    degenerate input (too few, identical or non-finite points): the pair comes back failed.
+    """
+    found = correspondences(pts_i, pts_j, K, threshold_px=threshold_px, images=images)
+    if found is None:
+        return _failed(0, len(pts_i))
+    return rotation_from_correspondences(*found, K, threshold_px=threshold_px)

@@ -10,16 +10,20 @@ or condition (7.9), ``|PE| < MAR``. For ``x = |PE| > 0`` condition (7.8) is the 
 ``[0, MAR) ∪ [x_lo, x_hi]``. With the thesis' values at 30 fps (b = 0.0183°, MAR = 0.02°) that
 is simply ``|PE| <= 5b = 0.0915°``.
 
-Two consequences of ω = FPS · PE that the thesis, written for 30 fps, does not spell out:
+**Frame rate.** The model is defined, and its bias b calibrated, at the 30 fps of the thesis'
+subjective tests: PE is a second difference over two frame steps, and with ω = FPS · PE the band
+of (7.8) depends on the rate (at 25 fps or less ``0.04 FPS - 1 <= 0`` and it has no upper bound,
+so every motion would be trackable; at 60 fps it is 7x narrower). The same motion must score
+the same whatever rate it was filmed at, so egovid evaluates the model at its own rate: every
+motion, 3D angles and 2D target tracks alike, is resampled in time to 30 fps
+(:func:`to_model_rate`, cubic through the samples, no anti-alias filter: shake above 15 Hz is
+folded into the model's band rather than dropped) and then scored with the thesis' frame counts
+(saccade 6 frames, VE window N + 1 = 10, 2D-VE segment N = 30). Rates within 1 % of 30 fps
+(29.97) are used as they are. This is the one place the rule lives; the scores, the stabiliser's
+objective and the easing table all go through it.
 
-* at 25 fps or less, ``0.04 FPS - 1 <= 0`` and the upper bound disappears (every motion would be
-  trackable), and below 5.6 fps condition (7.8) can never hold. egovid therefore scores motions
-  recorded at 25 fps or less after resampling them to 30 fps (:func:`resample_angles`);
-* a bias so large that ``x_lo > MAR`` splits the trackable set in two; egovid refuses such biases
-  (``b > MAR (0.18 FPS - 1)``, 0.088° at 30 fps), far above the thesis' 0.0183° and 0.038°.
-
-Durations (saccade, window) are given in frames at 30 fps, as in the thesis, and scaled to the
-motion's frame rate.
+A bias so large that ``x_lo > MAR`` splits the trackable set in two; egovid refuses such biases
+(``b > MAR (0.18 · 30 - 1) = 0.088°``), far above the thesis' 0.0183° and 0.038°.
 """
 
 from __future__ import annotations
@@ -30,9 +34,10 @@ import numpy as np
 
 from egovid.errors import EgovidError
 
-#: Frame rates at or below this are resampled to 30 fps before scoring (see module docstring).
-MIN_MODEL_FPS = 25.0
+#: The frame rate at which the model is evaluated (see the module docstring).
 MODEL_FPS = 30.0
+#: Frame rates within this relative distance of MODEL_FPS are scored without resampling.
+SAME_RATE_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -46,7 +51,7 @@ class ViewingModel:
     bias_deg:
         Bias of position-error estimation ``b``, degrees: 0.0183° for the 3D model, 0.038° for 2D.
     saccade_frames:
-        Frames lost to a catch-up saccade, at 30 fps (6 for 3D; the 2D model uses 5).
+        Frames lost to a catch-up saccade at the model's 30 fps (6 for 3D; the 2D model uses 5).
     window_frames:
         Frames per VE/SVE window ``N + 1`` at 30 fps (10; 2D-VE uses ``N`` = 30).
     t_min_s, t_max_s:
@@ -72,7 +77,7 @@ class ViewingModel:
         m.validate()
         return m
 
-    def validate(self, fps: float = MODEL_FPS) -> None:
+    def validate(self) -> None:
         """Raise :class:`EgovidError` for parameters outside the model's domain."""
         checks = [
             (self.d_over_f > 0.1 and self.d_over_f < 100, f"d/f = {self.d_over_f} (use 1–20; thesis 4)"),
@@ -85,38 +90,78 @@ class ViewingModel:
         for ok, what in checks:
             if not ok:
                 raise EgovidError(f"viewing-model parameter out of range: {what}", "see `egovid fpv score --help`")
-        _, x_lo, _ = self.pe_bounds(max(fps, MODEL_FPS))
+        if self.t_min_s * MODEL_FPS <= 1.0:
+            raise EgovidError(
+                f"eye-crossing time {self.t_min_s} s is at most one frame at {MODEL_FPS:g} fps",
+                "condition (7.8) then has no upper bound; use the thesis' 0.04 s",
+            )
+        _, x_lo, _ = self.pe_bounds()
         if x_lo > self.mar_deg:
             raise EgovidError(
                 f"bias b = {self.bias_deg}° is so large that condition (7.8) no longer overlaps |PE| < MAR",
-                f"use b <= {self.mar_deg * (self.t_max_s * max(fps, MODEL_FPS) - 1):.3f}°",
+                f"use b <= {self.mar_deg * (self.t_max_s * MODEL_FPS - 1):.3f}°",
             )
 
-    def pe_bounds(self, fps: float) -> tuple[float, float, float]:
-        """``(MAR, x_lo, x_hi)`` in degrees: trackable iff ``|PE| < MAR`` or ``x_lo <= |PE| <= x_hi``."""
+    def pe_bounds(self, fps: float = MODEL_FPS) -> tuple[float, float, float]:
+        """``(MAR, x_lo, x_hi)`` in degrees: trackable iff ``|PE| < MAR`` or ``x_lo <= |PE| <= x_hi``.
+
+        Every score evaluates this at the model's 30 fps; other rates are only for study, and a rate
+        at which (7.8) has no upper bound (``t_min · fps <= 1``, 25 fps with the thesis' values) is
+        refused instead of returning an infinite bound."""
         a = self.t_max_s * fps - 1.0
         c = self.t_min_s * fps - 1.0
-        x_lo = self.bias_deg / a if a > 0 else np.inf
-        x_hi = self.bias_deg / c if c > 0 else np.inf
-        return self.mar_deg, x_lo, x_hi
+        if a <= 0 or c <= 0:
+            raise EgovidError(
+                f"condition (7.8) has no upper bound at {fps:g} fps",
+                f"resample the motion to {MODEL_FPS:g} fps first (perception.model.to_model_rate)",
+            )
+        return self.mar_deg, self.bias_deg / a, self.bias_deg / c
 
-    def pe_threshold(self, fps: float) -> float:
+    def pe_threshold(self, fps: float = MODEL_FPS) -> float:
         """Largest trackable ``|PE|`` in degrees (the trackable set is ``[0, threshold]``)."""
         mar, x_lo, x_hi = self.pe_bounds(fps)
         return max(mar, x_hi) if x_lo <= mar else mar
 
-    def frames(self, n_at_30: int, fps: float) -> int:
-        """A duration given in frames at 30 fps, in frames at ``fps``."""
-        return max(1, round(n_at_30 * fps / MODEL_FPS))
+
+def is_model_rate(fps: float) -> bool:
+    """True when ``fps`` is within 1 % of the model's 30 fps (scored without resampling)."""
+    return abs(fps / MODEL_FPS - 1.0) <= SAME_RATE_TOLERANCE
 
 
-def resample_angles(angles: np.ndarray, fps: float, target_fps: float = MODEL_FPS) -> np.ndarray:
-    """Resample an (K, ...) angle sequence from ``fps`` to ``target_fps`` (cubic interpolation)."""
-    from scipy.interpolate import CubicSpline
+def model_times(duration: float) -> np.ndarray:
+    """Sample times (seconds) of the model's 30 fps grid from 0 to ``duration`` inclusive."""
+    return np.arange(0.0, duration + 1e-9, 1.0 / MODEL_FPS)
 
-    a = np.asarray(angles, dtype=float)
-    t = np.arange(len(a)) / fps
-    t_new = np.arange(0.0, t[-1] + 1e-9, 1.0 / target_fps)
+
+def resample(samples: np.ndarray, times: np.ndarray, new_times: np.ndarray) -> np.ndarray:
+    """Cubic interpolation of (K, ...) ``samples`` taken at ``times`` (s) to ``new_times`` (s);
+    linear for fewer than 4 samples."""
+    from scipy.interpolate import CubicSpline, interp1d
+
+    a = np.asarray(samples, dtype=float)
+    t = np.asarray(times, dtype=float)
     if len(a) < 4:
-        return np.stack([np.interp(t_new, t, a[:, k]) for k in range(a.shape[1])], axis=1)
-    return CubicSpline(t, a, axis=0)(t_new)
+        return interp1d(t, a, axis=0, fill_value="extrapolate")(new_times)
+    return CubicSpline(t, a, axis=0)(new_times)
+
+
+def to_model_rate(
+    samples: np.ndarray, fps: float, times: np.ndarray | None = None
+) -> tuple[np.ndarray, float | None]:
+    """(K, ...) samples at ``fps`` (or at the given ``times``, seconds, for variable frame rate) ->
+    ``(samples on the model's 30 fps grid, the original rate or None if used as they are)``."""
+    a = np.asarray(samples, dtype=float)
+    if times is None and is_model_rate(fps):
+        return a, None
+    t = np.arange(len(a)) / fps if times is None else np.asarray(times, dtype=float) - float(times[0])
+    return resample(a, t, model_times(t[-1])), float(fps)
+
+
+def from_model_rate(samples: np.ndarray, fps: float, n: int, times: np.ndarray | None = None) -> np.ndarray:
+    """Inverse of :func:`to_model_rate`: 30 fps samples back to ``n`` frames at ``fps`` (or at
+    ``times``)."""
+    a = np.asarray(samples, dtype=float)
+    if times is None and is_model_rate(fps):
+        return a[:n]
+    t = np.arange(n) / fps if times is None else np.asarray(times, dtype=float) - float(times[0])
+    return resample(a, np.arange(len(a)) / MODEL_FPS, t)

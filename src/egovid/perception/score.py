@@ -2,11 +2,15 @@
 axes (eq. 8.12) and its root mean square (eq. 8.13).
 
 Inputs are yaw, pitch and roll angles in degrees per frame (see :mod:`egovid.geometry`) and the
-fields of view of the video. The roll component uses the roll interval B(n) shifted by yaw in the
-horizontal direction and by pitch in the vertical direction (eq. 8.2–8.3); its VE is the smaller
-of the two, as eq. 8.12 takes the smaller over axes.
-"""
+fields of view of the video. Motions at any frame rate are first brought to the model's 30 fps
+(:mod:`egovid.perception.model`).
 
+:func:`axis_windows` is the one implementation of the rule "intervals B(k) -> shift into world
+coordinates B̃ -> VE/SVE windows" that the scores, the stabiliser's objective and the easing table
+share: yaw and pitch intervals are shifted by their own angle (eq. 8.1); the roll interval is
+shifted by yaw along the horizontal field of view and by pitch along the vertical one (eq.
+8.2–8.3), and the roll VE is the smaller of the two, as eq. 8.12 takes the smaller over axes.
+"""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
@@ -15,7 +19,7 @@ import numpy as np
 
 from egovid.errors import EgovidError
 from egovid.perception.intervals import roll_intervals, yaw_pitch_intervals
-from egovid.perception.model import MIN_MODEL_FPS, MODEL_FPS, ViewingModel, resample_angles
+from egovid.perception.model import MODEL_FPS, ViewingModel, to_model_rate
 from egovid.perception.ve import sve_windows, ve_windows
 
 AXES = ("yaw", "pitch", "roll")
@@ -74,29 +78,67 @@ def rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
 
 
+#: The components of B̃ (eq. 8.1–8.3): angle column, interval geometry, field of view, shift column.
+_COMPONENTS = {
+    "yaw": (0, "yaw", "h", 0),
+    "pitch": (1, "yaw", "v", 1),
+    "roll_h": (2, "roll", "h", 0),
+    "roll_v": (2, "roll", "v", 1),
+}
+#: The components whose windows make up each axis's score (roll: the smaller of the two).
+AXIS_COMPONENTS = {"yaw": ("yaw",), "pitch": ("pitch",), "roll": ("roll_h", "roll_v")}
+
+
+def component_intervals(
+    angles: np.ndarray, component: str, hfov: float, vfov: float, model: ViewingModel = ViewingModel()
+) -> tuple[np.ndarray, float]:
+    """B̃(n) of one component of an (K, 3) motion at the model's rate: ((K-2, 2) [lo, hi] in
+    degrees, the field of view it lives in)."""
+    col, geometry, side, shift = _COMPONENTS[component]
+    fov = hfov if side == "h" else vfov
+    thr = model.pe_threshold()
+    a = np.asarray(angles, dtype=float)
+    intervals = yaw_pitch_intervals if geometry == "yaw" else roll_intervals
+    iv = intervals(a[:, col], fov, model.d_over_f, thr)
+    iv += a[: len(iv), shift, None]
+    return iv, fov
+
+
 def world_intervals(
     angles: np.ndarray, fps: float, hfov: float, vfov: float, model: ViewingModel = ViewingModel()
 ) -> WorldIntervals:
-    """B̃(n) for yaw, pitch and roll (horizontal and vertical) of an (K, 3) motion in degrees."""
-    a = np.asarray(angles, dtype=float)
-    thr = model.pe_threshold(fps)
-    yaw = yaw_pitch_intervals(a[:, 0], hfov, model.d_over_f, thr)
-    pitch = yaw_pitch_intervals(a[:, 1], vfov, model.d_over_f, thr)
-    roll_h = roll_intervals(a[:, 2], hfov, model.d_over_f, thr)
-    roll_v = roll_intervals(a[:, 2], vfov, model.d_over_f, thr)
-    m = len(a) - 2
-    yaw += a[:m, 0, None]
-    pitch += a[:m, 1, None]
-    roll_h += a[:m, 0, None]
-    roll_v += a[:m, 1, None]
-    return WorldIntervals(yaw, pitch, roll_h, roll_v, hfov, vfov)
+    """B̃(n) for yaw, pitch and roll (horizontal and vertical) of an (K, 3) motion in degrees,
+    on the model's 30 fps grid."""
+    a, _ = to_model_rate(angles, fps)
+    parts = {c: component_intervals(a, c, hfov, vfov, model)[0] for c in _COMPONENTS}
+    return WorldIntervals(parts["yaw"], parts["pitch"], parts["roll_h"], parts["roll_v"], hfov, vfov)
 
 
-def _windows(iv: np.ndarray, fov: float, method: str, model: ViewingModel, fps: float, variant: str) -> np.ndarray:
-    n1 = model.frames(model.window_frames, fps)
+def windows(iv: np.ndarray, fov: float, method: str, model: ViewingModel, sve_variant: str = "coverage") -> np.ndarray:
+    """VE (eq. 8.8) or SVE (eq. 8.10) of every window of B̃ intervals (model rate)."""
     if method == "ve":
-        return ve_windows(iv[:, 0], iv[:, 1], fov, n1, model.frames(model.saccade_frames, fps))
-    return sve_windows(iv[:, 0], iv[:, 1], fov, n1, variant)
+        return ve_windows(iv[:, 0], iv[:, 1], fov, model.window_frames, model.saccade_frames)
+    return sve_windows(iv[:, 0], iv[:, 1], fov, model.window_frames, sve_variant)
+
+
+def axis_windows(
+    angles: np.ndarray,
+    axis: str,
+    hfov: float,
+    vfov: float,
+    model: ViewingModel = ViewingModel(),
+    method: str = "ve",
+    sve_variant: str = "coverage",
+) -> np.ndarray:
+    """Per-window VE/SVE of one axis of an (K, 3) motion already at the model's 30 fps (the one
+    intervals -> shift -> windows rule; see the module docstring). Only the components this axis
+    needs are computed, so the stabiliser can call it in its inner loop."""
+    out = None
+    for comp in AXIS_COMPONENTS[axis]:
+        iv, fov = component_intervals(angles, comp, hfov, vfov, model)
+        w = windows(iv, fov, method, model, sve_variant)
+        out = w if out is None else np.minimum(out, w)
+    return out
 
 
 def check_angles(angles: np.ndarray, fps: float, model: ViewingModel) -> np.ndarray:
@@ -108,10 +150,10 @@ def check_angles(angles: np.ndarray, fps: float, model: ViewingModel) -> np.ndar
         raise EgovidError("motion contains NaN or infinite angles", "re-estimate the motion")
     if not (fps > 0 and np.isfinite(fps)):
         raise EgovidError(f"frame rate {fps} is not positive", "give the video's frame rate")
-    need = model.frames(model.window_frames, max(fps, MODEL_FPS)) + 2
-    if len(a) < need:
+    seconds = (model.window_frames + 2) / MODEL_FPS
+    if (len(a) - 1) / fps < seconds - 1.0 / MODEL_FPS - 1e-9:
         raise EgovidError(
-            f"motion has {len(a)} frames, fewer than one scoring window ({need} frames)",
+            f"motion has {len(a)} frames, fewer than one scoring window ({seconds:.2f} s)",
             "score a longer clip",
         )
     return a
@@ -126,7 +168,7 @@ def score_angles(
     model: ViewingModel = ViewingModel(),
     method: str = "ve",
     sve_variant: str = "coverage",
-    intervals: WorldIntervals | None = None,
+    times: np.ndarray | None = None,
 ) -> MotionScore:
     """VE or SVE of a motion: per-axis and combined window curves and the overall score.
 
@@ -135,30 +177,21 @@ def score_angles(
     angles:
         (K, 3) yaw, pitch, roll in degrees per frame.
     fps:
-        Frame rate; at 25 fps or less the motion is resampled to 30 fps first (see
-        :mod:`egovid.perception.model`).
+        Frame rate; motions not at 30 fps (±1 %) are resampled to 30 fps first (see
+        :mod:`egovid.perception.model`), and ``resampled_from`` says so.
     hfov, vfov:
         Horizontal and vertical field of view of the video in degrees.
+    times:
+        Frame times in seconds, for a variable frame rate (default: ``index / fps``).
     """
     if method not in METHODS:
         raise EgovidError(f"unknown method {method!r}", f"choose one of {', '.join(METHODS)}")
-    model.validate(fps)
+    model.validate()
     a = check_angles(angles, fps, model)
-    resampled_from = None
-    if fps <= MIN_MODEL_FPS:
-        a, resampled_from, fps = resample_angles(a, fps), fps, MODEL_FPS
-        intervals = None
-    iv = intervals or world_intervals(a, fps, hfov, vfov, model)
-    per_axis = {
-        "yaw": _windows(iv.yaw, hfov, method, model, fps, sve_variant),
-        "pitch": _windows(iv.pitch, vfov, method, model, fps, sve_variant),
-        "roll": np.minimum(
-            _windows(iv.roll_h, hfov, method, model, fps, sve_variant),
-            _windows(iv.roll_v, vfov, method, model, fps, sve_variant),
-        ),
-    }
+    a, resampled_from = to_model_rate(a, fps, times)
+    per_axis = {ax: axis_windows(a, ax, hfov, vfov, model, method, sve_variant) for ax in AXES}
     combined = np.minimum(np.minimum(per_axis["yaw"], per_axis["pitch"]), per_axis["roll"])
-    params = {**asdict(model), "hfov_deg": hfov, "vfov_deg": vfov, "pe_threshold_deg": model.pe_threshold(fps)}
+    params = {**asdict(model), "hfov_deg": hfov, "vfov_deg": vfov, "pe_threshold_deg": model.pe_threshold()}
     if method == "sve":
         params["sve_variant"] = sve_variant
     return MotionScore(
@@ -167,8 +200,8 @@ def score_angles(
         axis_scores={k: rms(v) for k, v in per_axis.items()},
         combined=combined,
         per_axis=per_axis,
-        window_times=np.arange(len(combined)) / fps,
-        fps=fps,
+        window_times=np.arange(len(combined)) / MODEL_FPS,
+        fps=MODEL_FPS,
         resampled_from=resampled_from,
         params=params,
     )

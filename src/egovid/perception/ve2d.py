@@ -16,7 +16,12 @@ tracked ("1011111" → "1000001"); a target that leaves the frame is lost for th
 segment. The first two frames of a segment count as tracked. The 2D-VE of the video is the RMS
 over segments of the mean tracked fraction (eq. 8.18).
 
-Memory is bounded: only the last N flows' worth of active targets are kept.
+Frame rate: like the 3D scores, the model runs at 30 fps (:mod:`egovid.perception.model`). A
+segment starts at every frame and follows its targets for one model segment (N = 30 samples, 1 s);
+at other rates the targets' angular tracks are resampled in time to the model's 30 fps before the
+conditions are checked, so the same motion filmed at 25 or 60 fps scores the same.
+
+Memory is bounded: only the active segments' tracks (one model segment long) are kept.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ import numpy as np
 from egovid.errors import EgovidError
 from egovid.io.camera import Intrinsics
 from egovid.io.video import iter_frames, probe
-from egovid.perception.model import ViewingModel
+from egovid.perception.model import MODEL_FPS, ViewingModel, is_model_rate, model_times, resample
 from egovid.perception.score import rms
 
 
@@ -85,18 +90,26 @@ def grid_centres(width: int, height: int, rows: int = 10, cols: int = 20) -> np.
 
 
 class _Segments:
-    """Targets of the active segments, advanced one flow at a time."""
+    """Targets of the active segments, advanced one flow at a time.
+
+    ``n`` is the segment length in samples at the model's 30 fps; at another ``fps`` a segment
+    follows its targets over the native frames that span those ``n`` samples, and the angular
+    tracks are resampled to the model's grid when the segment is complete."""
 
     def __init__(self, intr: Intrinsics, model: ViewingModel, fps: float, n: int, rows: int, cols: int):
         self.intr = intr
         self.n = n
-        self.sacc = model.frames(model.saccade_frames, fps)
-        mar, x_lo, x_hi = model.pe_bounds(fps)
+        self.sacc = model.saccade_frames
+        mar, x_lo, x_hi = model.pe_bounds()
         self.mar = math.radians(mar)
         self.x_lo = math.radians(x_lo)
-        self.x_hi = math.radians(x_hi) if np.isfinite(x_hi) else np.inf
+        self.x_hi = math.radians(x_hi)
         self.d = model.d_over_f * intr.focal
         self.start = grid_centres(intr.width, intr.height, rows, cols)
+        self.native = is_model_rate(fps)
+        self.fps = fps
+        # Native frames a segment needs to cover its n model samples (n - 1 steps of 1/30 s).
+        self.n_frames = n if self.native else math.ceil((n - 1) / MODEL_FPS * fps - 1e-9) + 1
         self.active: list[dict] = []
         self.done: list[float] = []
 
@@ -114,41 +127,43 @@ class _Segments:
 
     def begin(self) -> None:
         p = self.start.copy()
-        n_pts = len(p)
-        self.active.append(
-            {
-                "pos": [p],
-                "inside": np.ones(n_pts, bool),
-                "tracked": np.full(n_pts, 2.0),  # first two frames count as tracked
-                "sacc_left": np.zeros(n_pts, np.int64),
-                "len": 1,
-            }
-        )
+        self.active.append({"pos": [p], "inside": [np.ones(len(p), bool)]})
 
     def advance(self, flow: np.ndarray, scale: float) -> None:
         """Move every active target by ``flow`` (computed at ``scale`` of full resolution)."""
-        if not self.active:
-            return
         w, h = self.intr.width, self.intr.height
         for seg in self.active:
             p = seg["pos"][-1]
             u, v = _bilinear(flow, (p[:, 0] + 0.5) * scale - 0.5, (p[:, 1] + 0.5) * scale - 0.5)
             q = p + np.column_stack([u, v]) / scale
-            seg["inside"] &= (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
-            seg["pos"] = [*seg["pos"][-2:], q]
-            seg["len"] += 1
-            if seg["len"] >= 3:
-                a = self._alpha(np.stack(seg["pos"][-3:]))
-                pe = a[2] - 2.0 * a[1] + a[0]
-                ok = self._ok(pe) & seg["inside"]
-                in_sacc = seg["sacc_left"] > 0
-                start_sacc = ~ok & ~in_sacc
-                seg["tracked"] += (ok & ~in_sacc).astype(float)
-                seg["sacc_left"] = np.where(in_sacc, seg["sacc_left"] - 1, np.where(start_sacc, self.sacc - 1, 0))
-        finished = [s for s in self.active if s["len"] >= self.n]
-        self.active = [s for s in self.active if s["len"] < self.n]
+            inside = (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
+            seg["pos"].append(q)
+            seg["inside"].append(seg["inside"][-1] & inside)
+        finished = [s for s in self.active if len(s["pos"]) >= self.n_frames]
+        self.active = [s for s in self.active if len(s["pos"]) < self.n_frames]
         for s in finished:
-            self.done.append(float(np.mean(s["tracked"] / self.n)))
+            self.done.append(self._tracked_fraction(np.stack(s["pos"]), np.stack(s["inside"])))
+
+    def _tracked_fraction(self, pos: np.ndarray, inside: np.ndarray) -> float:
+        """Mean fraction of the segment's n model frames during which each target is pursued."""
+        alpha = self._alpha(pos)  # (frames, targets, 2) radians
+        if not self.native:
+            t = np.arange(len(alpha)) / self.fps
+            tm = model_times((self.n - 1) / MODEL_FPS)[: self.n]
+            alpha = resample(alpha, t, tm)
+            # A target counts as gone from the first model sample at or after it left the frame.
+            idx = np.minimum(np.ceil(tm * self.fps - 1e-9).astype(int), len(inside) - 1)
+            inside = inside[idx]
+        tracked = np.full(alpha.shape[1], 2.0)  # the first two frames count as tracked
+        sacc_left = np.zeros(alpha.shape[1], np.int64)
+        for j in range(2, self.n):
+            pe = alpha[j] - 2.0 * alpha[j - 1] + alpha[j - 2]
+            ok = self._ok(pe) & inside[j]
+            in_sacc = sacc_left > 0
+            start_sacc = ~ok & ~in_sacc
+            tracked += (ok & ~in_sacc).astype(float)
+            sacc_left = np.where(in_sacc, sacc_left - 1, np.where(start_sacc, self.sacc - 1, 0))
+        return float(np.mean(tracked / self.n))
 
 
 def ve2d_video(
@@ -164,16 +179,15 @@ def ve2d_video(
     import time
 
     model = model or ViewingModel.model_2d()
+    model.validate()
     info = probe(video)
     fps = info.fps
-    model.validate(fps)
     intr = intrinsics or Intrinsics.default(info.width, info.height)
-    n = model.frames(model.window_frames, fps)
-    if info.frame_count and info.frame_count < n:
-        pass  # decided after decoding, when the count is exact
+    n = model.window_frames
     scale = min(1.0, flow_width / info.width)
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
     segs = _Segments(intr, model, fps, n, grid[0], grid[1])
+    need = segs.n_frames
     prev = None
     count = 0
     t0 = time.perf_counter()
@@ -187,8 +201,11 @@ def ve2d_video(
         count += 1
         if progress is not None:
             progress(count, info.frame_count)
-    if count < n:
-        raise EgovidError(f"{video} has {count} frames, fewer than one 2D-VE segment ({n})", "score a longer clip")
+    if count < need:
+        raise EgovidError(
+            f"{video} has {count} frames, fewer than one 2D-VE segment ({need} frames, {n / MODEL_FPS:.1f} s)",
+            "score a longer clip",
+        )
     segments = np.array(segs.done)
     return VE2DResult(
         score=rms(segments),
@@ -200,8 +217,11 @@ def ve2d_video(
             "bias_deg": model.bias_deg,
             "mar_deg": model.mar_deg,
             "d_over_f": model.d_over_f,
-            "saccade_frames": model.frames(model.saccade_frames, fps),
+            "model_fps": MODEL_FPS,
+            "resampled_from_fps": None if segs.native else fps,
+            "saccade_frames": model.saccade_frames,
             "segment_frames": n,
+            "segment_native_frames": need,
             "grid": list(grid),
             "flow_width": round(info.width * scale),
         },

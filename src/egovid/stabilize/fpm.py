@@ -75,6 +75,12 @@ def find_anchors(theta: np.ndarray, threshold: float = 0.5) -> np.ndarray:
     return np.array(sorted(set(anchors)), dtype=np.int64)
 
 
+def motion_anchors(theta: np.ndarray, threshold: float = 0.5) -> np.ndarray:
+    """The anchors egovid uses everywhere (optimiser, pure FPM, FPMI): :func:`find_anchors` with a
+    threshold of at least 3x the motion's measured jitter, so jitter never makes anchors."""
+    return find_anchors(theta, max(threshold, 3.0 * noise_level(theta)))
+
+
 def noise_level(theta: np.ndarray) -> float:
     """Robust standard deviation (degrees) of frame-to-frame jitter in a motion: the MAD of its
     second difference, scaled for white noise (Var Δ² = 6 σ²)."""

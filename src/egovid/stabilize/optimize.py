@@ -14,10 +14,12 @@ motion is already comfortable while its zigzag still carries the first-person fe
 Fig. 9.3b).
 
 Choices (docs/fpv.md): axes are optimised separately with their own VE (the thesis couples them
-through the minimum of eq. 8.12, which only the worst axis would feel); long motions are cut into
-overlapping blocks of anchors, each solved by scipy's differential evolution with the anchors on
-its left already decided, so the cost grows linearly with length; the block's objective is the
-RMS over the windows its anchors influence.
+through the minimum of eq. 8.12, which only the worst axis would feel), computed by the scores'
+own rule (:func:`egovid.perception.score.axis_windows`; roll shifted by the other axes' motion);
+long motions are cut into overlapping blocks of anchors, each solved by scipy's differential
+evolution with the anchors on its left already decided, so the cost grows linearly with length;
+the block's objective is the RMS over the windows its anchors influence. Motions are planned at
+the model's 30 fps (the caller resamples; :func:`egovid.stabilize.pipeline.plan_motion`).
 """
 
 from __future__ import annotations
@@ -28,16 +30,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import differential_evolution
 
-from egovid.perception.intervals import roll_intervals, yaw_pitch_intervals
-from egovid.perception.model import ViewingModel
-from egovid.perception.ve import sve_windows, ve_windows
+from egovid.perception.model import MODEL_FPS, ViewingModel
+from egovid.perception.score import AXES, axis_windows
 from egovid.stabilize.fpm import (
     AnchorGeometry,
     anchor_geometry,
     ease,
-    find_anchors,
+    motion_anchors,
     motion_trend,
-    noise_level,
     pure_fpm,
     reduce_anchors,
 )
@@ -82,33 +82,34 @@ class AxisPlan:
 
 
 class AxisModel:
-    """Everything needed to turn reduction rates into an edited motion and score it."""
+    """Everything needed to turn reduction rates into an edited motion and score it.
+
+    ``theta`` is one axis of a motion at the model's 30 fps; ``context`` the whole (K, 3) motion
+    (the other axes shift roll's intervals, eq. 8.2–8.3; default: still)."""
 
     def __init__(
         self,
         theta: np.ndarray,
         axis: str,
-        fov: float,
-        fps: float,
+        hfov: float,
+        vfov: float,
         model: ViewingModel,
         opts: OptimizeOptions,
         lut: EasingLUT | None = None,
+        context: np.ndarray | None = None,
     ) -> None:
         self.theta = np.asarray(theta, dtype=float)
         self.n = len(self.theta)
         self.axis = axis
+        self.col = AXES.index(axis)
         self.kind = "roll" if axis == "roll" else "yaw"
-        self.fov = fov
-        self.fps = fps
+        self.hfov, self.vfov = hfov, vfov
+        fov = vfov if axis == "pitch" else hfov
         self.model = model
         self.opts = opts
         self.lut = lut or EasingLUT.default()
-        self.thr = model.pe_threshold(fps)
-        self.n1 = model.frames(model.window_frames, fps)
-        self.sacc = model.frames(model.saccade_frames, fps)
-        # Jitter must not create anchors: the threshold is at least 3x the measured jitter.
-        self.threshold = max(opts.anchor_threshold, 3.0 * noise_level(self.theta))
-        self.anchors = find_anchors(self.theta, self.threshold)
+        self.context = np.zeros((self.n, 3)) if context is None else np.array(context, dtype=float)
+        self.anchors = motion_anchors(self.theta, opts.anchor_threshold)
         trend = motion_trend(self.theta, self.anchors)[self.anchors]
         self.geom: AnchorGeometry = anchor_geometry(self.anchors, self.theta[self.anchors], trend)
         # FPMR weights (eq. 9.5-9.6): motions between consecutive anchors larger than the view.
@@ -124,27 +125,18 @@ class AxisModel:
 
     def shape(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         swing = np.abs(np.diff(values))
-        length = np.diff(self.anchors)
-        return self.lut.lookup(self.kind, swing, length)
+        return self.lut.lookup(self.kind, swing, np.diff(self.anchors) / MODEL_FPS)
 
     def edited(self, D: np.ndarray) -> np.ndarray:
         v = self.values(D)
         k, s = self.shape(v)
         return ease(self.anchors, v, k, s, self.n)
 
-    def _windows(self, theta: np.ndarray) -> np.ndarray:
-        if self.kind == "roll":
-            iv = roll_intervals(theta, self.fov, self.model.d_over_f, self.thr)
-        else:
-            iv = yaw_pitch_intervals(theta, self.fov, self.model.d_over_f, self.thr)
-            iv += theta[: len(iv), None]
-        if self.opts.method == "sve":
-            return sve_windows(iv[:, 0], iv[:, 1], self.fov, self.n1)
-        return ve_windows(iv[:, 0], iv[:, 1], self.fov, self.n1, self.sacc)
-
-    def score(self, theta: np.ndarray) -> float:
-        """RMS of this axis's VE (or SVE) windows."""
-        w = self._windows(theta)
+    def score(self, theta: np.ndarray, lo: int = 0) -> float:
+        """RMS of this axis's VE (or SVE) windows for ``theta`` on frames ``lo`` onwards."""
+        a = self.context[lo : lo + len(theta)].copy()
+        a[:, self.col] = theta
+        w = axis_windows(a, self.axis, self.hfov, self.vfov, self.model, self.opts.method)
         return float(np.sqrt(np.mean(w * w))) if len(w) else 1.0
 
     def objective(self, D: np.ndarray, lo: int = 0, hi: int | None = None) -> float:
@@ -153,7 +145,7 @@ class AxisModel:
         k, s = self.shape(v)
         eased = ease(self.anchors, v, k, s, self.n)[lo:hi]
         pure = pure_fpm(self.anchors, v, self.n)[lo:hi]
-        j = 1.0 - self.score(eased) + self.score(pure)
+        j = 1.0 - self.score(eased, lo) + self.score(pure, lo)
         # VE saturates near 1 and the pure-FPM VE has a plateau (Fig. 9.3b), so J is often flat in
         # D; a small preference for reduction resolves the tie towards the thesis' "point B", the
         # most stable motion that still keeps the first-person feeling.
@@ -170,16 +162,18 @@ class AxisModel:
 def optimize_axis(
     theta: np.ndarray,
     axis: str,
-    fov: float,
-    fps: float,
+    hfov: float,
+    vfov: float,
     model: ViewingModel | None = None,
     opts: OptimizeOptions | None = None,
     progress: Callable[[int, int], None] | None = None,
+    context: np.ndarray | None = None,
 ) -> AxisPlan:
-    """Edited motion of one axis (degrees per frame) minimising eq. 9.4 block by block."""
+    """Edited motion of one axis (degrees per frame at the model's 30 fps) minimising eq. 9.4
+    block by block; ``hfov``/``vfov`` in degrees, ``context`` the (K, 3) motion around it."""
     model = model or ViewingModel()
     opts = opts or OptimizeOptions()
-    am = AxisModel(theta, axis, fov, fps, model, opts)
+    am = AxisModel(theta, axis, hfov, vfov, model, opts, context=context)
     T = len(am.anchors)
     D = np.zeros(T)
     movable = np.flatnonzero(am.geom.room > 0)
@@ -189,7 +183,7 @@ def optimize_axis(
         notes.append("nothing to reduce: the motion follows its trend (monotonic, or below the anchor threshold)")
     else:
         D[movable] = 0.5 * opts.d_max  # right context for the first blocks
-        margin = am.n1 + 2
+        margin = model.window_frames + 2
         starts = list(range(0, len(movable), opts.stride))
         for b, start in enumerate(starts):
             idx = movable[start : start + opts.block]

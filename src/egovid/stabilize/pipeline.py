@@ -1,9 +1,20 @@
-"""The stabiliser end to end: motion → edited motion → rendered video → measurements.
+"""The stabiliser end to end: motion → planned motion → path the frame affords → rendered video →
+measured video.
 
-``stabilize()`` is what ``egovid fpv stabilize`` runs. Roll is removed by default (set to the
-clip's median roll, so a tilted mount stays as mounted and only roll shake goes); ``keep_roll``
-treats it like yaw and pitch. ``strength`` blends the original and the optimal motion
-(1 = optimal, 0 = untouched).
+``stabilize()`` is what ``egovid fpv stabilize`` runs:
+
+1. the camera motion of the input (estimated, or given);
+2. the thesis' plan (ch. 9, :mod:`egovid.stabilize.optimize`) at the model's 30 fps: roll is
+   levelled by default (set to the clip's median roll, so a tilted mount stays as mounted and only
+   roll shake goes; ``keep_roll`` treats it like yaw and pitch); ``strength`` blends the original
+   and the planned motion (1 = the plan, 0 = untouched);
+3. with ``borders="crop"``, the path nearest that plan that a dynamic zoom of at most
+   ``max_zoom`` covers (:mod:`egovid.stabilize.path`);
+4. the frames re-rendered along that path, keeping what the camera wrote
+   (:mod:`egovid.stabilize.render`);
+5. unless ``measure=False``, the input and the decoded output measured alike
+   (:mod:`egovid.stabilize.measure`): VE, SVE, FPMI, 2D-VE, ITF and jitter, beside the same
+   scores of the path as planned.
 """
 
 from __future__ import annotations
@@ -11,7 +22,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -20,62 +31,68 @@ from egovid.geometry import matrix_from_euler
 from egovid.io.camera import Intrinsics
 from egovid.io.trajectory import Trajectory
 from egovid.io.video import probe
-from egovid.perception.model import ViewingModel
-from egovid.perception.score import check_angles, score_angles
-from egovid.stabilize.fpm import find_anchors, pure_fpm
+from egovid.perception.model import ViewingModel, from_model_rate, to_model_rate
+from egovid.perception.score import AXES, check_angles
+from egovid.stabilize.measure import MotionScores, VideoMeasures, measure_video, motion_scores
 from egovid.stabilize.optimize import AxisPlan, OptimizeOptions, optimize_axis
-from egovid.stabilize.render import RenderStats, homographies, render_stabilized
+from egovid.stabilize.path import FittedPath, fit_path
+from egovid.stabilize.render import RenderStats, content_masks, homographies, render_stabilized
+
+
+def _retention(pure_before: float, pure_after: float) -> float:
+    """Share of first-person motion information kept: (1 - VE_pure after) / (1 - VE_pure before)."""
+    lost_before = 1.0 - pure_before
+    return (1.0 - pure_after) / lost_before if lost_before > 1e-9 else 1.0
 
 
 @dataclass
 class StabilizeResult:
-    """Everything measured about one stabilisation run (angles in degrees, ITF in dB)."""
+    """One stabilisation run. Angles in degrees (K, 3): ``original`` (input motion), ``plan`` (the
+    thesis' plan), ``path`` (what was rendered); ``keep`` (K,) the share of the frame kept (zoom
+    1/keep); scores of the path as ``planned``; ``before``/``after`` measured on the decoded input
+    and output (None with ``measure=False``); ``seconds`` per stage (not in :meth:`summary`,
+    which is deterministic)."""
 
     output: str
     times: np.ndarray
     original: np.ndarray
-    edited: np.ndarray
+    plan: np.ndarray
+    path: np.ndarray
+    keep: np.ndarray
     plans: dict[str, AxisPlan]
-    ve_before: float
-    ve_after: float
-    fpmi_before: float
-    fpmi_after: float
+    planned: MotionScores
+    planned_before: MotionScores
+    before: VideoMeasures | None
+    after: VideoMeasures | None
     render: RenderStats
+    fitted: FittedPath | None
     seconds: dict[str, float] = field(default_factory=dict)
     params: dict = field(default_factory=dict)
 
     @property
-    def fpmi_retention(self) -> float:
-        """Share of first-person motion information kept: (1 - VE_pure after) / (1 - VE_pure before)."""
-        lost_before = 1.0 - self.fpmi_before
-        return (1.0 - self.fpmi_after) / lost_before if lost_before > 1e-9 else 1.0
+    def edited(self) -> np.ndarray:
+        """The rendered path (alias kept for callers of the thesis' wording)."""
+        return self.path
 
     def summary(self) -> dict:
-        return {
+        """JSON-ready results: the same input and options give the same dict (no timings)."""
+        zoom = 1.0 / self.keep
+        out = {
             "output": self.output,
             "frames": len(self.times),
-            "ve_before": self.ve_before,
-            "ve_after": self.ve_after,
-            "pure_fpm_ve_before": self.fpmi_before,
-            "pure_fpm_ve_after": self.fpmi_after,
-            "fpmi_retention": self.fpmi_retention,
-            "itf_before_db": self.render.itf_before,
-            "itf_after_db": self.render.itf_after,
+            "planned": {"before": asdict(self.planned_before), "after": asdict(self.planned)},
+            "fpmi_retention_planned": _retention(self.planned_before.pure_fpm_ve, self.planned.pure_fpm_ve),
+            "zoom": {"mean": float(zoom.mean()), "max": float(zoom.max())},
             "black_share": self.render.black_share,
-            "crop_factor": self.render.crop,
-            "seconds": self.seconds,
-            "fps_end_to_end": len(self.times) / max(self.seconds.get("total", 1e-9), 1e-9),
+            "kept_from_input": self.render.kept,
+            "not_kept": self.render.dropped,
+            "notes": self.fitted.notes if self.fitted else [],
             "params": self.params,
         }
-
-
-def pure_motion(angles: np.ndarray, threshold: float = 0.5) -> np.ndarray:
-    """The pure FPM (zigzag through the anchors) of every axis of a (K, 3) motion."""
-    out = np.empty_like(angles)
-    for k in range(angles.shape[1]):
-        a = find_anchors(angles[:, k], threshold)
-        out[:, k] = pure_fpm(a, angles[a, k], len(angles))
-    return out
+        if self.before is not None and self.after is not None:
+            out["measured"] = {"before": self.before.to_dict(), "after": self.after.to_dict()}
+            out["fpmi_retention_measured"] = _retention(self.before.pure_fpm_ve, self.after.pure_fpm_ve)
+        return out
 
 
 def plan_motion(
@@ -88,24 +105,31 @@ def plan_motion(
     model: ViewingModel | None = None,
     opts: OptimizeOptions | None = None,
     progress: Callable[[int, int], None] | None = None,
+    times: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[str, AxisPlan]]:
-    """Edited (K, 3) motion in degrees and the per-axis plans."""
+    """Edited (K, 3) motion in degrees and the per-axis plans.
+
+    The plan is made at the model's 30 fps (the motion is resampled there and the edited motion
+    back to the video's frames), so the objective and the easing table mean the same at every
+    frame rate; the plans' anchors are in frames at 30 fps."""
     if not (0.0 <= strength <= 1.0):
         raise EgovidError(f"strength {strength} is outside [0, 1]", "use e.g. --strength 0.7")
     model = model or ViewingModel()
     opts = opts or OptimizeOptions()
-    axes = [("yaw", 0, intr.hfov_deg), ("pitch", 1, intr.vfov_deg)]
-    if keep_roll:
-        axes.append(("roll", 2, intr.hfov_deg))
-    edited = np.array(angles, dtype=float)
+    a30, _ = to_model_rate(angles, fps, times)
+    axes = ["yaw", "pitch"] + (["roll"] if keep_roll else [])
+    edited30 = np.array(a30)
+    if not keep_roll:
+        edited30[:, 2] = np.median(angles[:, 2])
     plans: dict[str, AxisPlan] = {}
-    for step, (name, col, fov) in enumerate(axes):
-        plans[name] = optimize_axis(angles[:, col], name, fov, fps, model, opts)
-        edited[:, col] = plans[name].edited
+    for step, name in enumerate(axes):
+        col = AXES.index(name)
+        # Roll's intervals are shifted by the yaw and pitch the viewer will see (eq. 8.2-8.3).
+        plans[name] = optimize_axis(a30[:, col], name, intr.hfov_deg, intr.vfov_deg, model, opts, context=edited30)
+        edited30[:, col] = plans[name].edited
         if progress is not None:
             progress(step + 1, len(axes))
-    if not keep_roll:
-        edited[:, 2] = np.median(angles[:, 2])
+    edited = from_model_rate(edited30, fps, len(angles), times)
     edited = angles + strength * (edited - angles)
     return edited, plans
 
@@ -118,17 +142,20 @@ def stabilize(
     motion: Trajectory | None = None,
     strength: float = 1.0,
     borders: str = "crop",
+    max_zoom: float = 1.10,
     keep_roll: bool = False,
     method: str = "ve",
     model: ViewingModel | None = None,
     opts: OptimizeOptions | None = None,
     crf: int = 18,
+    measure: bool = True,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> StabilizeResult:
     """Stabilise ``src`` into ``dst`` keeping the intentional first-person motion.
 
     ``motion`` reuses a previously estimated trajectory (it must have one entry per frame).
-    ``progress(stage, done, total)`` is called with stages ``motion``, ``optimise``, ``render``.
+    ``progress(stage, done, total)`` is called with stages ``motion``, ``plan``, ``render`` and
+    the measuring stages.
     """
     from egovid.motion.estimate import estimate_motion
 
@@ -144,42 +171,65 @@ def stabilize(
     angles = motion.euler()
     fps = info.fps
     check_angles(angles, fps, model)  # too short to score: say so before writing anything
-    cb = (lambda d, t: progress("optimise", d, t)) if progress else None
-    edited, plans = plan_motion(
+    cb = (lambda d, t: progress("plan", d, t)) if progress else None
+    plan, plans = plan_motion(
         angles, fps, intr, strength=strength, keep_roll=keep_roll, model=model, opts=opts, progress=cb
     )
+    fitted = None
+    path, keep = plan, np.ones(len(plan))
+    if borders == "crop":
+        fitted = fit_path(angles, plan, intr, fps, max_zoom=max_zoom)
+        path, keep = fitted.path, fitted.keep
     t2 = time.perf_counter()
     R_old = matrix_from_euler(angles[:, 0], angles[:, 1], angles[:, 2])
-    R_new = matrix_from_euler(edited[:, 0], edited[:, 1], edited[:, 2])
+    R_new = matrix_from_euler(path[:, 0], path[:, 1], path[:, 2])
     H = homographies(R_old, R_new, intr)
     cb = (lambda d, t: progress("render", d, t)) if progress else None
-    stats = render_stabilized(src, dst, H, borders=borders, R_new=R_new, intrinsics=intr, crf=crf, progress=cb)
+    stats = render_stabilized(
+        src, dst, H, keep=keep, borders=borders, R_new=R_new, intrinsics=intr, crf=crf, progress=cb
+    )
     t3 = time.perf_counter()
-    hfov, vfov = intr.hfov_deg, intr.vfov_deg
-    ve_before = score_angles(angles, fps, hfov, vfov, model=model, method=method).score
-    ve_after = score_angles(edited, fps, hfov, vfov, model=model, method=method).score
-    fp_before = score_angles(pure_motion(angles, opts.anchor_threshold), fps, hfov, vfov, model=model).score
-    fp_after = score_angles(pure_motion(edited, opts.anchor_threshold), fps, hfov, vfov, model=model).score
+    scores = {"model": model, "anchor_threshold": opts.anchor_threshold}
+    planned_before = motion_scores(angles, fps, intr, **scores)
+    planned = motion_scores(path, fps, intr, **scores)
+    before = after = None
+    if measure:
+        masks = None if borders == "crop" else content_masks(H, keep, intr.width, intr.height)
+        before = measure_video(src, intr, motion=angles, **scores, progress=progress)
+        after = measure_video(dst, intr, masks=masks, **scores, progress=progress)
+    t4 = time.perf_counter()
     return StabilizeResult(
         output=str(dst),
         times=motion.times,
         original=angles,
-        edited=edited,
+        plan=plan,
+        path=path,
+        keep=keep,
         plans=plans,
-        ve_before=ve_before,
-        ve_after=ve_after,
-        fpmi_before=fp_before,
-        fpmi_after=fp_after,
+        planned=planned,
+        planned_before=planned_before,
+        before=before,
+        after=after,
         render=stats,
-        seconds={"motion": t1 - t0, "optimise": t2 - t1, "render": t3 - t2, "total": time.perf_counter() - t0},
+        fitted=fitted,
+        seconds={
+            "motion": t1 - t0,
+            "plan": t2 - t1,
+            "render": t3 - t2,
+            "measure": t4 - t3,
+            "total": t4 - t0,
+        },
         params={
             "strength": strength,
             "borders": borders,
+            "max_zoom": max_zoom if borders == "crop" else None,
             "keep_roll": keep_roll,
             "method": method,
             "focal_px": intr.focal,
+            "hfov_deg": intr.hfov_deg,
             "anchor_threshold_deg": opts.anchor_threshold,
             "d_over_f": model.d_over_f,
             "bias_deg": model.bias_deg,
+            "crf": crf,
         },
     )

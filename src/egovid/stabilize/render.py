@@ -1,19 +1,23 @@
-"""Render a stabilised video: one rotation homography per frame on full-resolution frames.
+"""Render a stabilised video: one rotation homography (and zoom) per frame, on the decoded planes.
 
 Frame k, taken with orientation ``R_k`` (camera-to-world), is re-rendered as if taken with the
 edited orientation ``R̃_k``: pixels move by ``H_k = K (R̃_kᵀ R_k) K⁻¹`` (the thesis' ``K R̃ Rᵀ K⁻¹``
-in its world-to-camera convention). Borders:
+in its world-to-camera convention), then by the frame's zoom about the image centre. Borders:
 
+* ``crop`` (default): the zoom of every frame (from :mod:`egovid.stabilize.path`) keeps the
+  frame covered, so there are none;
 * ``black``: uncovered pixels stay black;
-* ``crop``: the largest centred crop of the frame's aspect ratio that no frame leaves uncovered is
-  scaled back to full size (one fixed zoom for the whole video);
 * ``fill``: uncovered pixels are taken from the previous output frame re-projected to the new
   orientation (a temporal mosaic), and mirrored content where that has none yet.
 
-The content mask of every output frame is the warp of an all-ones image by the same homography,
-so ITF and the black-area share are measured on true content only. Frames stream from the decoder
-to the encoder; the output has the same frame count and timestamps, the audio is copied and the
-container metadata kept, and nothing appears at the target path unless the whole video succeeded.
+Frames are warped as decoded, plane by plane (Y at full size, U and V at their 4:2:0 size with the
+same homography re-expressed on the chroma grid), so no colour conversion touches the pixels and
+the colour tags, range, rotation flag, audio and telemetry of the input are kept
+(:class:`egovid.io.video.VideoWriter` ``keep_from``). The content mask of a frame (for the masked
+ITF and the black share) is the warp of an all-ones image by the same homography, computed only
+where a frame can have borders. Frames stream from the decoder to the encoder; the output has the
+same frame count and timestamps, and nothing appears at the target path unless the whole video
+succeeded.
 """
 
 from __future__ import annotations
@@ -29,9 +33,10 @@ import numpy as np
 from egovid.errors import EgovidError
 from egovid.io.camera import Intrinsics
 from egovid.io.video import VideoWriter, iter_frames, probe
-from egovid.metrics.itf import ITFAccumulator
 
 BORDERS = ("black", "crop", "fill")
+#: Luma -> chroma pixel coordinates of 4:2:0 (chroma sited between luma pixels).
+_TO_CHROMA = np.array([[0.5, 0.0, -0.25], [0.0, 0.5, -0.25], [0.0, 0.0, 1.0]])
 
 
 def homographies(R_old: np.ndarray, R_new: np.ndarray, intr: Intrinsics) -> np.ndarray:
@@ -41,60 +46,59 @@ def homographies(R_old: np.ndarray, R_new: np.ndarray, intr: Intrinsics) -> np.n
     return K @ Q @ K_inv
 
 
-def _inside_quads(quads: np.ndarray, pts: np.ndarray) -> bool:
-    """True if every point lies inside every convex quad ((K, 4, 2), corners in order)."""
-    a = quads
-    b = np.roll(quads, -1, axis=1)
-    edge = b - a  # (K, 4, 2)
-    rel = pts[None, None, :, :] - a[:, :, None, :]  # (K, 4, P, 2)
-    cross = edge[:, :, None, 0] * rel[..., 1] - edge[:, :, None, 1] * rel[..., 0]
-    sign = np.sign(np.sum(cross, axis=(1, 2)))[:, None, None]  # orientation of each quad
-    return bool(np.all(cross * sign >= -1e-6))
-
-
-def crop_factor(H: np.ndarray, width: int, height: int) -> float:
-    """Largest c in (0, 1] such that the centred (c·w) x (c·h) rectangle is covered by every
-    warped frame (bisection)."""
-    corners = np.array([[0, 0], [width - 1, 0], [width - 1, height - 1], [0, height - 1]], float)
-    h = np.concatenate([corners, np.ones((4, 1))], axis=1) @ np.swapaxes(H, 1, 2)
-    quads = h[..., :2] / h[..., 2:3]
-    if np.any(h[..., 2] <= 0):
-        return 0.0
+def zoom_about_centre(keep: np.ndarray | float, width: int, height: int) -> np.ndarray:
+    """Homographies ((K, 3, 3), or (3, 3) for a scalar) scaling by ``1/keep`` about the centre."""
+    k = np.asarray(keep, dtype=float)
+    s = 1.0 / k
     cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
-
-    def rect(c: float) -> np.ndarray:
-        dx, dy = c * (width - 1) / 2.0, c * (height - 1) / 2.0
-        return np.array([[cx - dx, cy - dy], [cx + dx, cy - dy], [cx + dx, cy + dy], [cx - dx, cy + dy]])
-
-    lo, hi = 0.0, 1.0
-    if _inside_quads(quads, rect(1.0)):
-        return 1.0
-    for _ in range(30):
-        mid = 0.5 * (lo + hi)
-        if _inside_quads(quads, rect(mid)):
-            lo = mid
-        else:
-            hi = mid
-    return lo
+    Z = np.zeros((*k.shape, 3, 3))
+    Z[..., 0, 0] = s
+    Z[..., 1, 1] = s
+    Z[..., 0, 2] = cx * (1 - s)
+    Z[..., 1, 2] = cy * (1 - s)
+    Z[..., 2, 2] = 1.0
+    return Z
 
 
-def zoom_about_centre(c: float, width: int, height: int) -> np.ndarray:
-    """Homography scaling by 1/c about the image centre."""
-    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
-    s = 1.0 / c
-    return np.array([[s, 0, cx * (1 - s)], [0, s, cy * (1 - s)], [0, 0, 1.0]])
+def content_masks(H: np.ndarray, keep: np.ndarray, width: int, height: int) -> Callable[[int], np.ndarray]:
+    """``mask(k)``: the (height, width) bool content mask of output frame k, the warp of an
+    all-ones frame by its homography ``H[k]`` and zoom ``1/keep[k]`` (geometry, never colour)."""
+    Hz = zoom_about_centre(np.asarray(keep, dtype=float), width, height) @ H
+    ones = np.full((height, width), 255, np.uint8)
+
+    def mask(k: int) -> np.ndarray:
+        return cv2.warpPerspective(ones, Hz[k], (width, height), flags=cv2.INTER_NEAREST) > 127
+
+    return mask
 
 
 @dataclass
 class RenderStats:
-    """Measured while rendering: ITF (dB) before and after (masked), black share, crop factor."""
+    """Measured while rendering: mean share of black (uncovered) pixels, the per-frame zoom (mean
+    and largest), what was and was not kept from the input."""
 
     frames: int
-    itf_before: float
-    itf_after: float
     black_share: float
-    crop: float
+    zoom_mean: float
+    zoom_max: float
     seconds: float
+    kept: list[str]
+    dropped: list[str]
+
+
+def _warp_i420(img: np.ndarray, H: np.ndarray, w: int, h: int, border: tuple[int, int], mode: int) -> np.ndarray:
+    """Warp one I420 picture ((h*3/2, w) uint8) by the luma homography ``H``."""
+    out = np.empty_like(img)
+    out[:h] = cv2.warpPerspective(img[:h], H, (w, h), flags=cv2.INTER_LINEAR, borderMode=mode, borderValue=border[0])
+    Hc = _TO_CHROMA @ H @ np.linalg.inv(_TO_CHROMA)
+    cw, ch = w // 2, h // 2
+    planes = img[h:].reshape(2, ch, cw)
+    oc = out[h:].reshape(2, ch, cw)
+    for p in range(2):
+        oc[p] = cv2.warpPerspective(
+            planes[p], Hc, (cw, ch), flags=cv2.INTER_LINEAR, borderMode=mode, borderValue=border[1]
+        )
+    return out
 
 
 def render_stabilized(
@@ -102,6 +106,7 @@ def render_stabilized(
     dst: str | os.PathLike,
     H: np.ndarray,
     *,
+    keep: np.ndarray | None = None,
     borders: str = "crop",
     R_new: np.ndarray | None = None,
     intrinsics: Intrinsics | None = None,
@@ -109,52 +114,47 @@ def render_stabilized(
     preset: str = "veryfast",
     progress: Callable[[int, int], None] | None = None,
 ) -> RenderStats:
-    """Warp every frame of ``src`` by ``H[k]`` and encode to ``dst`` (atomically)."""
+    """Warp every frame of ``src`` by ``H[k]`` and the zoom ``1/keep[k]``, and encode to ``dst``
+    (atomically, keeping what the camera wrote)."""
     if borders not in BORDERS:
         raise EgovidError(f"unknown border mode {borders!r}", f"choose one of {', '.join(BORDERS)}")
     info = probe(src)
     w, h = info.width, info.height
-    crop = 1.0
-    if borders == "crop":
-        crop = crop_factor(H, w, h)
-        if crop < 0.2:
-            raise EgovidError(
-                f"the stabilised frames overlap too little to crop (zoom would be {1 / max(crop, 1e-3):.1f}x)",
-                "use --borders black or fill, or a lower --strength",
-            )
-        H = zoom_about_centre(crop, w, h)[None] @ H
+    if w % 2 or h % 2:
+        raise EgovidError(f"{src} is {w}x{h}; the stabiliser needs even dimensions", "crop or scale it by one pixel")
+    keep = np.ones(len(H)) if keep is None else np.asarray(keep, dtype=float)
+    H = zoom_about_centre(keep, w, h) @ H
+    black = (0 if info.colour.full_range else 16, 128)
+    mode = cv2.BORDER_REFLECT if borders == "fill" else cv2.BORDER_CONSTANT
     ones = np.full((h, w), 255, np.uint8)
-    before = ITFAccumulator()
-    after = ITFAccumulator()
-    black = 0.0
+    masks = content_masks(H, np.ones(len(H)), w, h)  # H already holds the zoom
+    black_sum = 0.0
     prev_out = None
     t0 = time.perf_counter()
     n = 0
-    flags = cv2.INTER_LINEAR
-    with VideoWriter(dst, w, h, info.fps, crf=crf, preset=preset, audio_from=src, metadata_from=src) as writer:
-        for frame in iter_frames(src):
+    Zi = zoom_about_centre(keep, w, h)
+    with VideoWriter(dst, w, h, info.fps, crf=crf, preset=preset, keep_from=src) as writer:
+        for frame in iter_frames(src, i420=True):
             k = frame.index
             if k >= len(H):
                 raise EgovidError(
                     f"{src} has more frames than its motion ({len(H)})", "re-estimate the motion of this video"
                 )
-            Hk = H[k]
-            mode = cv2.BORDER_REFLECT if borders == "fill" else cv2.BORDER_CONSTANT
-            out = cv2.warpPerspective(frame.image, Hk, (w, h), flags=flags, borderMode=mode)
-            mask = cv2.warpPerspective(ones, Hk, (w, h), flags=cv2.INTER_NEAREST) > 127
+            out = _warp_i420(frame.image, H[k], w, h, black, mode)
+            mask = None if borders == "crop" else masks(k)
             if borders == "fill" and prev_out is not None and R_new is not None and intrinsics is not None:
-                Hp = homographies(R_new[k - 1 : k], R_new[k : k + 1], intrinsics)[0]
-                if crop != 1.0:
-                    Z = zoom_about_centre(crop, w, h)
-                    Hp = Z @ Hp @ np.linalg.inv(Z)
-                prev = cv2.warpPerspective(prev_out, Hp, (w, h), flags=flags, borderMode=cv2.BORDER_CONSTANT)
+                Hp = Zi[k] @ homographies(R_new[k - 1 : k], R_new[k : k + 1], intrinsics)[0] @ np.linalg.inv(Zi[k - 1])
+                prev = _warp_i420(prev_out, Hp, w, h, black, cv2.BORDER_CONSTANT)
                 prev_ok = cv2.warpPerspective(ones, Hp, (w, h), flags=cv2.INTER_NEAREST) > 127
                 use = prev_ok & ~mask
-                out[use] = prev[use]
-            writer.write(out, frame.time)
-            before.add(frame.image)
-            after.add(out, mask)
-            black += 1.0 - np.count_nonzero(mask) / mask.size
+                out[:h][use] = prev[:h][use]
+                cu = use[::2, ::2]
+                for p in range(2):
+                    plane = out[h:].reshape(2, h // 2, w // 2)[p]
+                    plane[cu] = prev[h:].reshape(2, h // 2, w // 2)[p][cu]
+            writer.write_i420(out, frame.time)
+            if mask is not None:
+                black_sum += 1.0 - np.count_nonzero(mask) / mask.size
             prev_out = out
             n += 1
             if progress is not None:
@@ -163,4 +163,13 @@ def render_stabilized(
             raise EgovidError(
                 f"{src} decoded {n} frames but its motion has {len(H)}", "re-estimate the motion of this video"
             )
-    return RenderStats(n, before.value, after.value, black / max(n, 1), crop, time.perf_counter() - t0)
+    zoom = 1.0 / keep
+    return RenderStats(
+        n,
+        black_sum / max(n, 1),
+        float(zoom.mean()),
+        float(zoom.max()),
+        time.perf_counter() - t0,
+        writer.kept,
+        writer.dropped,
+    )

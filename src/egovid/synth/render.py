@@ -42,9 +42,14 @@ class SphereRenderer:
         self._sx = np.float32(pw / (2 * np.pi))
         self._sy = np.float32(ph / np.pi)
 
-    def maps(self, R: np.ndarray, position: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Remap tables (x, y) into the panorama for a camera at ``position`` with orientation ``R``."""
-        d = R.astype(np.float32) @ self._rays  # world directions
+    def maps(
+        self, R: np.ndarray, position: np.ndarray | None = None, rows: tuple[int, int] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Remap tables (x, y) into the panorama for a camera at ``position`` with orientation ``R``;
+        only image rows ``rows = (first, stop)`` when given."""
+        h, w = self.intr.height, self.intr.width
+        a, b = rows if rows is not None else (0, h)
+        d = R.astype(np.float32) @ self._rays[:, a * w : b * w]  # world directions
         if position is not None and np.any(position):
             c = np.asarray(position, dtype=np.float32).reshape(3, 1)
             cd = (c * d).sum(axis=0)
@@ -56,10 +61,9 @@ class SphereRenderer:
         lon = np.where(lon > np.pi, lon - 2 * np.pi, lon)
         lat = cv2.phase(cv2.magnitude(dx, dz), -dy)
         lat = np.where(lat > np.pi, lat - 2 * np.pi, lat)
-        h, w = self.intr.height, self.intr.width
         pw = self.pano.shape[1]
-        map_x = (lon * self._sx + np.float32(pw / 2 - 0.5)).reshape(h, w)
-        map_y = ((np.float32(np.pi / 2) - lat) * self._sy - np.float32(0.5)).reshape(h, w)
+        map_x = (lon * self._sx + np.float32(pw / 2 - 0.5)).reshape(b - a, w)
+        map_y = ((np.float32(np.pi / 2) - lat) * self._sy - np.float32(0.5)).reshape(b - a, w)
         return map_x, map_y
 
     def render_rolling(self, rotations: list[np.ndarray], position: np.ndarray | None = None) -> np.ndarray:
@@ -70,8 +74,7 @@ class SphereRenderer:
         mx = np.empty((h, self.intr.width), np.float32)
         my = np.empty_like(mx)
         for R, a, b in zip(rotations, bands[:-1], bands[1:], strict=True):
-            bx, by = self.maps(R, position)
-            mx[a:b], my[a:b] = bx[a:b], by[a:b]
+            mx[a:b], my[a:b] = self.maps(R, position, rows=(a, b))
         return cv2.remap(self.pano, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
 
     def render(self, R: np.ndarray, position: np.ndarray | None = None) -> np.ndarray:

@@ -23,7 +23,8 @@ def main() -> None:
         reader.camera_model = "PINHOLE"
         reader.camera_params = f"{fx},{fy},{cx},{cy}"
         extraction = pycolmap.FeatureExtractionOptions()
-        extraction.sift.max_num_features = 2048
+        extraction.sift.max_num_features = 1024
+        extraction.sift.first_octave = 0  # no up-sampled octave: 3x faster at 640x480
         extraction.num_threads = 1
         pycolmap.extract_features(
             db, images, camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader, extraction_options=extraction

@@ -1,17 +1,26 @@
 """Factor-based performance matrices (thesis §22.1–22.2).
 
 From the absolute results ``E(i, CRF_j, m)`` (VO i, compression level j, scene m; E = pose error,
-OITF or RITF) and the factor pairs (ideal scene, challenging scene):
+OITF or RITF; averaged over seeds) and the factor pairs (ideal scene, challenging scene):
 
-* **relative influence** (eq. 22.2–22.4): ``(E(challenging) - E(ideal)) / ΔITF`` for the pose error
-  and ``(E(ideal) - E(challenging)) / ΔITF`` for OITF/RITF (both positive when the factor hurts),
-  with ``ΔITF = OITF - RITF`` of the scene named n in eq. 22.2, then divided by the largest
-  magnitude over the factors of that VO and level. ΔITF near zero (a perfect or a totally failed
-  estimate makes OITF = RITF) would blow the ratio up: it is floored at ``min_delta`` dB.
-* **absolute influence** (eq. 22.5–22.6): the same differences unnormalised by ΔITF, divided by the
-  largest magnitude over the VOs for that factor and level.
+* **relative influence** (eq. 22.2–22.4)::
+
+      E_factor = (E(m) - E(n)) / ΔITF(n),   ΔITF = OITF - RITF                    (22.2, 22.3)
+      E_factor = E_factor / |max_k E_factor|                                       (22.4)
+
+  with n = the ideal scene for the pose error and m = the ideal scene for OITF/RITF (so a factor
+  that hurts gives a positive value). ΔITF is zero for a perfect or a totally failed estimate
+  (OITF = RITF) and may be slightly negative for jitter without drift; eq. 22.2 would then divide
+  by zero or flip the sign, so ΔITF is floored at ``min_delta`` (0.5 dB). The maximum of eq. 22.4
+  runs over the factors of one source (the synthetic factors, or the factors of one real
+  sequence), per VO and level. As the equation says, it is the magnitude of the largest value,
+  not the largest magnitude: when no factor hurts (every value ≤ 0) the values fall below -1.
+* **absolute influence** (eq. 22.5–22.6): ``E(m) - E(n)`` divided by ``|max_i|`` over the VOs.
 * **influence of compression** (Tables 22.1–22.3): the standard deviation over the compression
   levels of the eq. 22.5 difference, per VO and factor.
+
+``norm="max_abs"`` reproduces what egovid did before (ΔITF as ``|OITF - RITF|``, normalisers
+``max |E|``), so the effect of the choice can be measured (docs/voeval.md).
 """
 
 from __future__ import annotations
@@ -20,72 +29,110 @@ import warnings
 
 import numpy as np
 
-from egovid.voeval.scenes import FACTORS
+from egovid.voeval.layout import Factor
 
 METRICS = ("pose_error", "oitf", "ritf")
 LOWER_IS_BETTER = {"pose_error": True, "oitf": False, "ritf": False}
 MIN_DELTA_DB = 0.5
+NORMS = ("thesis", "max_abs")
 
 
-def _normalise(a: np.ndarray, axis: int) -> np.ndarray:
-    """Divide by the largest magnitude along ``axis``; missing values stay NaN."""
+def normalise(a: np.ndarray, axis: int, norm: str = "thesis") -> np.ndarray:
+    """Divide by ``|max a|`` (thesis) or ``max |a|`` along ``axis``; NaN stays NaN, and a slice whose
+    normaliser is zero gives NaN (no difference to normalise)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        m = np.nanmax(np.abs(a), axis=axis, keepdims=True)
+        m = (
+            np.abs(np.nanmax(a, axis=axis, keepdims=True))
+            if norm == "thesis"
+            else np.nanmax(np.abs(a), axis=axis, keepdims=True)
+        )
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(np.isfinite(a), np.where(m > 0, a / m, 0.0), np.nan)
+        return np.where(np.isfinite(a) & (m > 0), a / np.where(m > 0, m, 1.0), np.nan)
 
 
-def factor_matrices(results: dict, vos: list[str], crfs: list[str], min_delta: float = MIN_DELTA_DB) -> dict:
-    """All matrices from ``results[(vo, scene, crf)] = {"pose_error": .., "oitf": .., "ritf": ..}``.
+def mean_over_seeds(cells: dict) -> dict:
+    """``{(vo, scene, level): {metric: mean over seeds}}`` from ``{(vo, scene, level, seed): cell}``."""
+    groups: dict = {}
+    for (vo, scene, level, _seed), c in cells.items():
+        groups.setdefault((vo, scene, level), []).append(c)
+    return {k: {m: float(np.mean([c[m] for c in v])) for m in METRICS} for k, v in groups.items()}
 
-    Returns arrays indexed [vo, factor, crf] ("relative", "absolute", "difference") and
-    [vo, factor] ("compression") per metric, plus the factor names.
+
+def factor_matrices(
+    results: dict,
+    vos: list[str],
+    levels: list[str],
+    factors: list[Factor],
+    *,
+    norm: str = "thesis",
+    min_delta: float = MIN_DELTA_DB,
+) -> dict:
+    """All matrices from ``results[(vo, scene, level)] = {"pose_error", "oitf", "ritf"}``.
+
+    Returns, per metric, arrays indexed [vo, factor, level] ("difference", "relative",
+    "absolute") and [vo, factor] ("compression").
     """
-    factors = list(FACTORS)
-    out: dict = {"factors": factors, "vos": vos, "crfs": crfs}
-    shape = (len(vos), len(factors), len(crfs))
+    if norm not in NORMS:
+        raise ValueError(f"unknown normalisation {norm!r}")
+    shape = (len(vos), len(factors), len(levels))
+    sources = list(dict.fromkeys(f.source for f in factors))
+    out: dict = {"factors": [f.label for f in factors], "vos": vos, "levels": levels, "norm": norm}
     for metric in METRICS:
         diff = np.full(shape, np.nan)
         rel = np.full(shape, np.nan)
         for i, vo in enumerate(vos):
             for k, f in enumerate(factors):
-                ideal, hard = FACTORS[f]
-                for j, c in enumerate(crfs):
-                    a, b = results.get((vo, ideal, c)), results.get((vo, hard, c))
+                for j, lv in enumerate(levels):
+                    a, b = results.get((vo, f.ideal, lv)), results.get((vo, f.hard, lv))
                     if a is None or b is None:
                         continue
                     if LOWER_IS_BETTER[metric]:
-                        d = b[metric] - a[metric]  # scene n = ideal
-                        ref = a
+                        d, n_scene = b[metric] - a[metric], a  # scene n = ideal
                     else:
-                        d = a[metric] - b[metric]  # scene m = ideal
-                        ref = b
-                    delta = max(abs(ref["oitf"] - ref["ritf"]), min_delta)
+                        d, n_scene = a[metric] - b[metric], b  # scene m = ideal, n = challenging
+                    delta = n_scene["oitf"] - n_scene["ritf"]
+                    delta = max(delta if norm == "thesis" else abs(delta), min_delta)
                     diff[i, k, j] = d
                     rel[i, k, j] = d / delta
+        relative = np.full(shape, np.nan)
+        for src in sources:
+            idx = [k for k, f in enumerate(factors) if f.source == src]
+            relative[:, idx, :] = normalise(rel[:, idx, :], axis=1, norm=norm)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            ic = np.nanstd(diff, axis=2)
         out[metric] = {
             "difference": diff,
-            "relative": _normalise(rel, axis=1),
-            "absolute": _normalise(diff, axis=0),
-            "compression": _nanstd(diff, axis=2),
+            "relative": relative,
+            "absolute": normalise(diff, axis=0, norm=norm),
+            "compression": ic,
         }
     return out
 
 
-def _nanstd(a: np.ndarray, axis: int) -> np.ndarray:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanstd(a, axis=axis)
-
-
-def absolute_matrix(results: dict, vos: list[str], scenes: list[str], crfs: list[str], metric: str) -> np.ndarray:
-    """E(vo, scene, crf) as an array (NaN where missing)."""
-    a = np.full((len(vos), len(scenes), len(crfs)), np.nan)
+def absolute_matrix(results: dict, vos: list[str], scenes: list[str], levels: list[str], metric: str) -> np.ndarray:
+    """E(vo, scene, level) as an array (NaN where missing)."""
+    a = np.full((len(vos), len(scenes), len(levels)), np.nan)
     for i, vo in enumerate(vos):
         for m, s in enumerate(scenes):
-            for j, c in enumerate(crfs):
-                r = results.get((vo, s, c))
+            for j, lv in enumerate(levels):
+                r = results.get((vo, s, lv))
                 if r is not None:
                     a[i, m, j] = r[metric]
+    return a
+
+
+def seed_spread(cells: dict, vos: list[str], scenes: list[str], levels: list[str], metric: str) -> np.ndarray:
+    """Standard deviation over seeds of E(vo, scene, level) (0 with one seed, NaN where missing)."""
+    groups: dict = {}
+    for (vo, scene, level, _seed), c in cells.items():
+        groups.setdefault((vo, scene, level), []).append(c[metric])
+    a = np.full((len(vos), len(scenes), len(levels)), np.nan)
+    for i, vo in enumerate(vos):
+        for m, s in enumerate(scenes):
+            for j, lv in enumerate(levels):
+                v = groups.get((vo, s, lv))
+                if v:
+                    a[i, m, j] = float(np.std(v))
     return a

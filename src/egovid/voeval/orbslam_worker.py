@@ -25,7 +25,7 @@ Camera.width: {width}
 Camera.height: {height}
 Camera.fps: {fps}
 Camera.RGB: 0
-ORBextractor.nFeatures: 1500
+ORBextractor.nFeatures: {features}
 ORBextractor.scaleFactor: 1.2
 ORBextractor.nLevels: 8
 ORBextractor.iniThFAST: 12
@@ -52,7 +52,12 @@ def main() -> None:
     fx, fy, cx, cy, width, height, fps = sys.argv[4:11]
     with tempfile.TemporaryDirectory() as tmp:
         settings = Path(tmp) / "settings.yaml"
-        settings.write_text(SETTINGS.format(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, fps=fps))
+        # 1500 features up to EuRoC's 752x480 (ORB-SLAM3's own EuRoC/TUM settings use 1000, which
+        # did not initialise on the 320x240 orbit), 2000 for KITTI-size frames as ORB-SLAM3 does.
+        features = 1500 if int(width) * int(height) <= 752 * 480 else 2000
+        settings.write_text(
+            SETTINGS.format(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, fps=fps, features=features)
+        )
         slam = pyorbslam3.Slam(vocab, settings, pyorbslam3.Sensor.MONOCULAR)
         rotations = {}
         try:

@@ -6,8 +6,10 @@ Two kinds of video, as in the thesis:
   always looking at its centre, with no rotation about its optical axis (eq. 21.1–21.6); the
   picture is rendered through the exact plane-to-image homography. Used for factors 1–3.
 * **pano** — the first-person "running" motion (yaw and pitch sines, pitch at twice the yaw
-  rate) rendered from the panorama sphere, walking slowly forward so two-view methods can
-  initialise. Used for factor 4, whose challenging scene adds rolling shutter (rows read out over
+  rate) rendered from the panorama sphere of radius 10 m, the camera dollying forward and
+  back (:func:`dolly`: up to 2 cm per frame, at most 0.6 m from the centre) so two-view
+  methods can initialise while the motion stays nearly a pure rotation. Used for factor 4,
+  whose challenging scene adds rolling shutter (rows read out over
   0.9 frame) and motion blur (5 sub-frames over half a frame).
 
 Scenes (each pair differs in one factor only, everything else fixed):
@@ -56,20 +58,43 @@ FACTORS = {
 }
 
 
+#: How the camera moves in each kind of scene: an odometer that models pure rotation cannot work
+#: on a "translating" scene by design (see :func:`egovid.voeval.recommend.in_domain`).
+MOTION = {"orbit": "translating", "pano": "rotating"}
+
+
 @dataclass
 class SceneTruth:
-    """Ground truth of a rendered scene: camera-to-world rotations relative to frame 0."""
+    """Ground truth of a test video: camera-to-world rotations (N, 3, 3) relative to frame 0,
+    the camera, the frame rate, frame times (N,) in seconds (default ``index / fps``) and a
+    description (``meta``: kind synthetic/real/derived, motion translating/rotating/general, source)."""
 
     name: str
     R: np.ndarray
     intrinsics: Intrinsics
     fps: float
+    times: np.ndarray | None = None
+    meta: dict | None = None
+
+    def __post_init__(self) -> None:
+        if self.times is None:
+            self.times = np.arange(len(self.R)) / self.fps
+        if self.meta is None:
+            self.meta = {}
+
+    @property
+    def motion(self) -> str:
+        """ "translating", "rotating" or "general" (real recordings)."""
+        return self.meta.get("motion", MOTION.get(self.name.split("-")[0], "general"))
 
     def save(self, folder: Path) -> None:
-        traj = Trajectory(np.arange(len(self.R)) / self.fps, self.R)
-        write_tum(folder / f"{self.name}.gt.tum", traj)
+        """Write ``NAME.gt.tum`` and ``NAME.json`` (atomically, the JSON last)."""
+        from egovid.io.files import atomic_write_text
+
+        write_tum(folder / f"{self.name}.gt.tum", Trajectory(self.times, self.R))
         i = self.intrinsics
         meta = {
+            **self.meta,
             "name": self.name,
             "fps": self.fps,
             "width": i.width,
@@ -79,8 +104,9 @@ class SceneTruth:
             "cx": i.cx,
             "cy": i.cy,
             "frames": len(self.R),
+            "motion": self.motion,
         }
-        (folder / f"{self.name}.json").write_text(json.dumps(meta, indent=1))
+        atomic_write_text(folder / f"{self.name}.json", json.dumps(meta, indent=1))
 
     @classmethod
     def load(cls, folder: Path, name: str) -> SceneTruth:
@@ -88,21 +114,24 @@ class SceneTruth:
 
         meta = json.loads((folder / f"{name}.json").read_text())
         intr = Intrinsics(meta["width"], meta["height"], meta["fx"], meta["fy"], meta["cx"], meta["cy"])
-        return cls(name, read_tum(folder / f"{name}.gt.tum").R, intr, meta["fps"])
+        traj = read_tum(folder / f"{name}.gt.tum")
+        return cls(name, traj.R, intr, meta["fps"], traj.times, meta)
 
 
-def mosaic(names: tuple[str, ...], size: int = 1024) -> np.ndarray:
-    """A 2 x 2 mosaic of photos (size x size BGR)."""
+def mosaic(names: tuple[str, ...], size: int = 1024, order: np.ndarray | None = None) -> np.ndarray:
+    """A 2 x 2 mosaic of photos (size x size BGR), tiles in ``order`` (default: as given)."""
     half = size // 2
+    names = tuple(names[i] for i in order) if order is not None else names
     tiles = [cv2.resize(photo(n), (half, half), interpolation=cv2.INTER_AREA) for n in names[:4]]
     return np.vstack([np.hstack(tiles[:2]), np.hstack(tiles[2:4])])
 
 
-def orbit_pose(t: float, r: float, d: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
+def orbit_pose(t: float, r: float, d: float, omega: float, phase: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Camera centre and camera-to-world rotation on the orbit at time t (eq. 21.1–21.5): the
     picture lies in the plane Z = 0 centred at the origin; the camera looks at the origin with its
-    x axis along the projection of the world X axis (no rotation about the optical axis)."""
-    c = np.array([r * math.cos(omega * t), -r * math.sin(omega * t), d])
+    x axis along the projection of the world X axis (no rotation about the optical axis).
+    ``phase`` (radians) starts the orbit elsewhere on the circle."""
+    c = np.array([r * math.cos(omega * t + phase), -r * math.sin(omega * t + phase), d])
     z = -c / np.linalg.norm(c)
     x = np.array([1.0, 0.0, 0.0]) - z[0] * z
     x /= np.linalg.norm(x)
@@ -127,35 +156,55 @@ def render_orbit(picture: np.ndarray, intr: Intrinsics, c: np.ndarray, R: np.nda
     )
 
 
-def running_angles(frames: np.ndarray, yaw: float = 6.0, pitch: float = 1.5, period: float = 24.0) -> np.ndarray:
-    """Running motion at (fractional) frame times: yaw and pitch sines, pitch at twice the rate."""
+def running_angles(
+    frames: np.ndarray, yaw: float = 6.0, pitch: float = 1.5, period: float = 24.0, phase: float = 0.0
+) -> np.ndarray:
+    """Running motion at (fractional) frame times: yaw and pitch sines, pitch at twice the rate,
+    degrees; ``phase`` shifts the time origin by that many frames."""
     w = 2 * np.pi / period
-    f = np.asarray(frames, dtype=float)
+    f = np.asarray(frames, dtype=float) + phase
     return np.stack([yaw * np.sin(w * f), pitch * np.sin(2 * w * f), 0.3 * np.sin(w * f - 1.0)], axis=-1)
+
+
+def dolly(frame: float, amplitude: float = 0.3, period: float = 96.0) -> float:
+    """Forward position (metres) of the pano camera at ``frame``: it walks forward and back,
+    ``amplitude * (1 - cos(2π frame / period))`` — at most 2 cm per frame (parallax for two-view
+    methods) and never more than 0.6 m from the centre of the 10 m sphere (so the scene stays
+    "rotating": a 300-frame walk straight ahead would end 4 m from the wall)."""
+    return amplitude * (1.0 - math.cos(2 * math.pi * frame / period))
 
 
 def render_scene(
     name: str, out: Path, *, frames: int = 48, width: int = 320, height: int = 240, fps: float = 30.0, seed: int = 0
 ) -> SceneTruth:
-    """Render one scene losslessly (FFV1 .mkv) and return its ground truth."""
+    """Render one scene losslessly (FFV1 .mkv) and return its ground truth.
+
+    ``seed`` varies what a repeated run should not depend on, identically for the ideal and the
+    challenging scene of a factor: the orbit's start and direction, the order of the photos in
+    the mosaic, the panorama, the phase of the running motion, and the sensor noise. Seed 0 is
+    the canonical scene (orbit from angle 0, photos in the listed order).
+    """
     if name not in SCENES:
         from egovid.errors import EgovidError
 
         raise EgovidError(f"unknown scene {name!r}", f"choose from {', '.join(SCENES)}")
-    rng = np.random.default_rng(seed)
+    rng_motion, rng_pictures, rng_noise = (np.random.default_rng([seed, k]) for k in range(3))
+    phase = float(rng_motion.uniform(0, 2 * math.pi)) if seed else 0.0
+    direction = float(rng_motion.choice([-1.0, 1.0])) if seed else 1.0
+    order = rng_pictures.permutation(4) if seed else None
     Rs = []
     if name.startswith("orbit"):
         intr = Intrinsics.from_hfov(width, height, 60.0)
-        picture = mosaic(UNSEEN if name == "orbit-unseen" else LEARNED)
-        omega = 2 * math.pi / frames
+        picture = mosaic(UNSEEN if name == "orbit-unseen" else LEARNED, order=order)
+        omega = direction * 2 * math.pi / frames
         with VideoWriter(out, width, height, fps, codec="ffv1") as w:
             for k in range(frames):
-                c, R = orbit_pose(k, 0.25, 1.0, omega)
+                c, R = orbit_pose(k, 0.25, 1.0, omega, phase)
                 img = render_orbit(picture, intr, c, R)
                 if name == "orbit-fog":
                     img = effects.fog(img, 0.75)
                 elif name == "orbit-sensor":
-                    img = effects.sensor(img, rng)
+                    img = effects.sensor(img, rng_noise)
                 w.write(img, k / fps)
                 Rs.append(R)
     else:
@@ -164,25 +213,27 @@ def render_scene(
 
         intr = Intrinsics.from_hfov(width, height, 75.0)
         rend = SphereRenderer(scene_panorama("panorama", 2048, seed), intr)
-        forward = 0.02  # metres per frame in a 10 m sphere
+        stride = phase / (2 * math.pi) * 24.0  # the seed's start, in frames of the 24-frame stride
         with VideoWriter(out, width, height, fps, codec="ffv1") as w:
             for k in range(frames):
-                pos = np.array([0.0, 0.0, forward * k])
+                pos = np.array([0.0, 0.0, dolly(k)])
                 if name == "pano-motion":
                     readout, exposure, sub = 0.9, 0.5, 5
                     subs = []
                     for j in range(sub):
                         t0 = k + exposure * j / (sub - 1)
                         ts = t0 + readout * np.linspace(0, 1, 16)
-                        a = running_angles(ts)
+                        a = running_angles(ts, phase=stride)
                         subs.append(rend.render_rolling(list(matrix_from_euler(a[:, 0], a[:, 1], a[:, 2])), pos))
                     img = effects.blur_average(subs)
-                    a = running_angles(np.array([k + exposure / 2 + readout / 2]))[0]
+                    a = running_angles(np.array([k + exposure / 2 + readout / 2]), phase=stride)[0]
                 else:
-                    a = running_angles(np.array([k]))[0]
+                    a = running_angles(np.array([k]), phase=stride)[0]
                     img = rend.render(matrix_from_euler(*a), pos)
                 w.write(img, k / fps)
                 Rs.append(matrix_from_euler(*a))
     R = np.stack(Rs)
     R = np.swapaxes(R[0], -1, -2) @ R
-    return SceneTruth(name, R, intr, fps)
+    return SceneTruth(
+        name, R, intr, fps, meta={"kind": "synthetic", "motion": MOTION[name.split("-")[0]], "seed": seed}
+    )

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from egovid.dashcam.align import MatchCache, OrbScorer, ScaleRefiner, small_gray
 from egovid.dashcam.extract import DriveFrames, FrameSource
-from egovid.io.video import iter_frames
+from egovid.dashcam.trips import iter_trip_frames
 from egovid.motion.features import FrameFeatures
 
 
@@ -33,10 +33,12 @@ class InputFrame:
     gray: np.ndarray
 
 
-def decode_once(video: str | os.PathLike, width: int, height: int, clock: dict | None = None) -> Iterator[InputFrame]:
-    """Every frame of ``video``, decoded once, in presentation order. ``clock['decode']`` (if
-    given) accumulates the seconds spent here."""
-    frames = iter_frames(video, i420=True)
+def decode_once(
+    video: str | os.PathLike | Sequence[str | os.PathLike], width: int, height: int, clock: dict | None = None
+) -> Iterator[InputFrame]:
+    """Every frame of ``video`` (or of several files back to back: a trip), decoded once, in
+    presentation order. ``clock['decode']`` (if given) accumulates the seconds spent here."""
+    frames = iter_trip_frames([video] if isinstance(video, str | os.PathLike) else list(video), i420=True)
     while True:
         t0 = time.perf_counter()
         fr = next(frames, None)

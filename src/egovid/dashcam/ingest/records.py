@@ -23,7 +23,9 @@ class DriveInput:
     Hooks for readers of other GPS sources and for catalogue tables of their own: ``track``, an
     already-read track (embedded GPS; then ``gps_label`` names it in the catalogue instead of a
     file), and ``extra``, a picklable object whose ``commit(catalogue, drive_id)`` the commit calls
-    in its transaction right after adding the drive."""
+    in its transaction right after adding the drive. A drive recorded as several files (a trip of
+    loop-recording files, dashcam/trips.py) lists them in ``parts``, in order, with the UTC start of
+    each in ``part_starts``: they are decoded back to back as one video."""
 
     video: Path
     gps: Path | None = None
@@ -34,6 +36,13 @@ class DriveInput:
     track: GpsTrack | None = None
     gps_label: str = ""
     extra: object | None = None
+    parts: tuple[Path, ...] = ()
+    part_starts: tuple[float, ...] = ()
+
+    @property
+    def files(self) -> tuple[Path, ...]:
+        """The drive's files in order (``parts``, or just ``video``)."""
+        return tuple(self.parts) or (Path(self.video),)
 
     @property
     def drive_name(self) -> str:

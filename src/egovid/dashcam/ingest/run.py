@@ -75,7 +75,7 @@ def ingest_drive(
         origin, new_origin = lock_areas(archive, session, track)
         plan = split_stage(archive.catalogue, track, origin, new_origin, size)
         clock["split"] = time.perf_counter() - t0
-        frames = decode_once(inp.video, *size, clock)
+        frames = decode_once(inp.files, *size, clock)
         refs = SegmentSnapshot(archive.blobs, plan.references)
         encoded = [
             encode_piece(

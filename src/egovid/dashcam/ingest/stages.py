@@ -86,7 +86,12 @@ def probe_stage(inp: DriveInput) -> VideoProbe:
             "crop the video to even dimensions",
         )
     start = inp.start_utc if inp.start_utc is not None else _parse_creation_time(info.creation_time)
-    return VideoProbe(Path(inp.video), info, frame_times(inp.video), start)
+    if inp.parts:  # a trip: the files' frames on one clock, the gaps between the files kept
+        starts = inp.part_starts
+        times = np.concatenate([frame_times(f) + (s - starts[0]) for f, s in zip(inp.parts, starts, strict=True)])
+    else:
+        times = frame_times(inp.video)
+    return VideoProbe(Path(inp.video), info, times, start)
 
 
 # -- track -------------------------------------------------------------------------------------

@@ -1,0 +1,172 @@
+"""``dashcam clip``: a shareable video of an incident, with its GPX beside it.
+
+The moment is given as a UTC time (``--at``) or a place (``--near``, the closest pass of the latest
+drive there, or of ``--drive``); :func:`window` turns it into the drive's frames [f0, f1) covering
+``before`` seconds before and ``after`` seconds after. :func:`write_clip` writes those frames as
+the archive decodes them (checked against the encoder's reconstruction digests, as ``extract``
+does) into an H.264 MP4 that phones and browsers play (yuv420p, ``+faststart``; CRF 18 by
+default, or lossless with ``lossless=True``: then every frame is bit-exact with the archive), tagged
+with the source's colour tags, with the archived audio (as AAC) and telemetry (GoPro GPMF …) of
+the same stretch, and writes ``NAME.gpx`` beside it with the GPS fixes of the stretch.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from egovid.dashcam.catalogue import Drive
+from egovid.dashcam.clock import iso
+from egovid.dashcam.find import Query, frame_positions, stretches
+from egovid.dashcam.fleetstore import FleetStore
+from egovid.dashcam.gps import project
+from egovid.dashcam.store import Archive
+from egovid.errors import EgovidError
+from egovid.io.files import atomic_write_text
+
+
+@dataclass
+class ClipPlan:
+    """What a clip holds: drive, frames [frame_start, frame_end), the UTC time of its first frame and
+    of the moment asked for (seconds)."""
+
+    drive: Drive
+    frame_start: int
+    frame_end: int
+    start_utc: float
+    moment_utc: float
+
+    @property
+    def frames(self) -> int:
+        return self.frame_end - self.frame_start
+
+
+def window(frame_utc: np.ndarray, moment: float, before: float, after: float) -> tuple[int, int]:
+    """Frames [f0, f1) from ``before`` seconds before ``moment`` (UTC) to ``after`` seconds after it,
+    cut to the drive."""
+    f0 = int(np.searchsorted(frame_utc, moment - before, side="left"))
+    f1 = int(np.searchsorted(frame_utc, moment + after, side="right"))
+    return max(0, f0), min(len(frame_utc), max(f1, f0 + 1))
+
+
+def plan_clip(
+    archive: Archive,
+    fleet: FleetStore,
+    *,
+    at: float | None = None,
+    near: tuple[float, float] | None = None,
+    radius: float = 50.0,
+    drive: str | None = None,
+    before: float = 10.0,
+    after: float = 10.0,
+) -> ClipPlan:
+    """Find the drive and frames of a clip (see the module docstring)."""
+    if (at is None) == (near is None):
+        raise EgovidError("give the moment with --at TIME or the place with --near LAT,LON", "one of the two")
+    for name, v in (("--before", before), ("--after", after)):
+        if not (np.isfinite(v) and 0 <= v <= 3600):
+            raise EgovidError(f"{name} {v} is not usable", "give seconds between 0 and 3600")
+    drives = [fleet.live_drive(drive)] if drive is not None else fleet.live_drives()
+    best: tuple[float, Drive, np.ndarray] | None = None  # (moment, drive, frame_utc)
+    for d in drives:
+        futc = fleet.frame_utc(d.id, d.fps)
+        if len(futc) == 0:
+            continue
+        if at is not None:
+            if futc[0] - 0.5 / d.fps <= at <= futc[-1] + 0.5 / d.fps and (
+                best is None or d.start_utc > best[1].start_utc
+            ):
+                best = (at, d, futc)
+            continue
+        track = fleet.track(d.id)
+        if track is None:
+            continue
+        found = stretches(Query(near=near, radius=radius), d.name, "", futc, *track, fps=d.fps)
+        if found:
+            s = min(found, key=lambda x: x.distance_m)
+            moment = _closest_moment(futc, track, near, s.frame_start, s.frame_end)
+            if best is None or moment > best[0]:
+                best = (moment, d, futc)
+    if best is None:
+        where = iso(at) if at is not None else f"within {radius:g} m of {near[0]:.6f},{near[1]:.6f}"
+        scope = f"drive {drive}" if drive else "any drive in the archive"
+        what = f"{scope} was not recorded at {where}" if at is not None else f"{scope} passed nowhere {where}"
+        raise EgovidError(what, "see `egovid dashcam find` for when and where drives were recorded")
+    moment, d, futc = best
+    f0, f1 = window(futc, moment, before, after)
+    return ClipPlan(d, f0, f1, float(futc[f0]), moment)
+
+
+def _closest_moment(futc, track, near, f0: int, f1: int) -> float:
+    """UTC of the frame of [f0, f1) closest to ``near``."""
+    pos = frame_positions(futc[f0:f1], *track)
+    xy = project(pos[:, 0], pos[:, 1], near)
+    return float(futc[f0 + int(np.argmin(np.hypot(xy[:, 0], xy[:, 1])))])
+
+
+def write_gpx(path: str | os.PathLike, name: str, t: np.ndarray, lat: np.ndarray, lon: np.ndarray) -> Path:
+    """A GPX 1.1 track of fixes (UTC seconds, degrees), written atomically."""
+    import gpxpy.gpx
+
+    gpx = gpxpy.gpx.GPX()
+    gpx.creator = "egovid"
+    trk = gpxpy.gpx.GPXTrack(name=name)
+    seg = gpxpy.gpx.GPXTrackSegment()
+    for ti, la, lo in zip(t, lat, lon, strict=True):
+        seg.points.append(
+            gpxpy.gpx.GPXTrackPoint(float(la), float(lo), time=dt.datetime.fromtimestamp(float(ti), dt.UTC))
+        )
+    trk.segments.append(seg)
+    gpx.tracks.append(trk)
+    return atomic_write_text(path, gpx.to_xml(version="1.1"))
+
+
+def write_clip(
+    archive: Archive,
+    fleet: FleetStore,
+    plan: ClipPlan,
+    out: str | os.PathLike,
+    *,
+    crf: int = 18,
+    lossless: bool = False,
+    progress=None,
+) -> dict:
+    """Write the clip and its GPX (see the module docstring); returns what was written."""
+    from egovid.dashcam.extract import extract_video
+    from egovid.io.video import ColourTags
+
+    out = Path(out)
+    if out.suffix.lower() != ".mp4":
+        raise EgovidError(f"cannot write a clip to {out.name}", "give an .mp4 output (H.264)")
+    d = plan.drive
+    meta = fleet.meta(d.id)
+    streams = archive.blobs.get(meta.streams_blob) if meta.streams_blob else None
+    extract_video(
+        archive, d, out, progress, (plan.frame_start, plan.frame_end),
+        colour=ColourTags(**meta.colour) if meta.colour else None, streams=streams,
+        crf=None if lossless else crf, audio_codec="aac",
+    )  # fmt: skip
+    kept = []
+    if streams is not None:
+        kept = [
+            k
+            for k in ("audio", "telemetry")
+            if (meta.streams_info.get(k) if k == "audio" else meta.streams_info.get("telemetry"))
+        ]
+    gpx_path = out.with_suffix(".gpx")
+    track = fleet.track(d.id)
+    fixes = 0
+    if track is not None:
+        t, lat, lon = track
+        end_utc = plan.start_utc + plan.frames / d.fps
+        sel = (t >= plan.start_utc - 1.0) & (t <= end_utc + 1.0)
+        if sel.any():
+            write_gpx(gpx_path, f"{d.name} {iso(plan.start_utc)}", t[sel], lat[sel], lon[sel])
+            fixes = int(sel.sum())
+    return {"video": str(out), "gpx": str(gpx_path) if fixes else None, "drive": d.name, "frames": plan.frames,
+            "frame_start": plan.frame_start, "frame_end": plan.frame_end, "start": iso(plan.start_utc),
+            "moment": iso(plan.moment_utc), "gps_fixes": fixes, "streams": kept, "lossless": lossless}  # fmt: skip

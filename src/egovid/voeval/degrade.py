@@ -1,0 +1,80 @@
+"""Image-level factors applied to recorded frames (``--real-factors``).
+
+The structural factors of the thesis (features, learned content, motion distortion) need a scene
+built for them and stay synthetic (:mod:`egovid.voeval.scenes`). What happens to a picture after
+the scene was captured can be applied to real frames, one factor at a time, each frame keeping
+its reference orientation:
+
+* ``noise`` — sensor read noise, Gaussian, σ = 8 levels (factor 3, sensor);
+* ``blur`` — motion blur along the camera's own reference rotation: the mean of 5 views rotated
+  over the first half of the frame interval (``K Qᵀ K⁻¹`` warps; exact for rotation, approximate
+  where the camera also translates near objects) (factor 4, motion);
+* ``illumination`` — low light with auto-exposure hunting: gain 0.35 × (1 ± 0.3 sin) over a 2 s
+  period, quantised to 8 bits (fewer grey levels, and no brightness constancy between frames)
+  (factor 3, sensor / illumination).
+
+The compression ladder (factor 5) applies to every scene, original or degraded.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from egovid.geometry import so3_exp, so3_log
+from egovid.io.video import VideoWriter, iter_frames
+from egovid.synth import effects
+from egovid.voeval.scenes import SceneTruth
+
+REAL_FACTORS = ("noise", "blur", "illumination")
+#: Which thesis factor each real-frame factor stands for.
+THESIS_FACTOR = {"noise": "sensor", "blur": "motion", "illumination": "sensor"}
+
+
+def rotation_blur(image: np.ndarray, K: np.ndarray, Q: np.ndarray, *, exposure: float = 0.5, samples: int = 5):
+    """Motion blur of a frame whose camera turns by ``Q`` (3x3, camera k to k+1) per frame
+    interval: the mean of ``samples`` views over ``exposure`` of the interval."""
+    w = so3_log(Q)
+    h, wd = image.shape[:2]
+    Ki = np.linalg.inv(K)
+    views = []
+    for s in np.linspace(0.0, exposure, samples):
+        Qs = so3_exp(w * s)
+        H = K @ Qs.T @ Ki  # pixel in frame k -> pixel seen after turning by Qs
+        views.append(cv2.warpPerspective(image, H, (wd, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT))
+    return effects.blur_average(views)
+
+
+def illumination_gain(t: np.ndarray, phase: float, *, level: float = 0.35, hunt: float = 0.3, period: float = 2.0):
+    """Exposure gain at times ``t`` (seconds): low light with a sinusoidal auto-exposure hunt."""
+    return level * (1.0 + hunt * np.sin(2 * math.pi * np.asarray(t) / period + phase))
+
+
+def degrade_scene(src: Path, truth: SceneTruth, factor: str, seed: int, dst: Path) -> SceneTruth:
+    """Write ``dst`` (FFV1): the frames of ``src`` with one image-level ``factor``; same truth."""
+    rng = np.random.default_rng([seed, 7])
+    phase = float(rng.uniform(0, 2 * math.pi))
+    K = truth.intrinsics.K
+    R = truth.R
+    with VideoWriter(dst, truth.intrinsics.width, truth.intrinsics.height, truth.fps, codec="ffv1") as wr:
+        for f in iter_frames(src):
+            k = f.index
+            img = f.image
+            if factor == "noise":
+                img = effects.sensor(img, rng, noise=8.0, vignetting=0.0, exposure=1.0)
+            elif factor == "blur":
+                a, b = (k, k + 1) if k + 1 < len(R) else (k - 1, k)
+                img = rotation_blur(img, K, R[a].T @ R[b])
+            elif factor == "illumination":
+                g = float(illumination_gain(np.array([f.time]), phase)[0])
+                img = np.clip(img.astype(np.float32) * g + 0.5, 0, 255).astype(np.uint8)
+            else:
+                from egovid.errors import EgovidError
+
+                raise EgovidError(f"unknown real-frame factor {factor!r}", f"choose from {', '.join(REAL_FACTORS)}")
+            wr.write(img, float(truth.times[k]) if k < len(truth.times) else f.time)
+    meta = {**truth.meta, "kind": "derived", "base": truth.name, "factor": factor, "seed": seed}
+    return SceneTruth(f"{truth.name}+{factor}", truth.R, truth.intrinsics, truth.fps, truth.times, meta)

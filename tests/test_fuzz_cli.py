@@ -68,9 +68,11 @@ def ws(tmp_path_factory) -> Path:
     (d / "notime.gpx").write_text(_gpx([("48.1", "11.5", "")]).replace("<time></time>", ""))
     (d / "junk.nmea").write_text("$GPRMC,garbage*00\n" * 5)
     (d / "bad.gps.csv").write_text("time,lat,lon\n2026-05-04T08:00:00Z,abc,11\n")
-    from egovid.dashcam.store import Archive
-
-    Archive.create(d / "arc").catalogue.close()
+    assert run(["dashcam", "init", str(d / "arc")]) == 0  # as a user makes it (fleet tables included)
+    gc.collect()
+    (d / "vids").mkdir()  # a folder of dashcam files whose sidecar GPS log is unusable
+    shutil.copy(clip, d / "vids" / "v1.mp4")
+    (d / "vids" / "v1.csv").write_text("time,lat,lon\n")
     (d / "notarc").mkdir()
     (d / "notarc" / "x.txt").write_text("x")
     run_dir = d / "run"
@@ -139,6 +141,8 @@ CASES: list[tuple[str, str, str]] = [
     ("motion-work-width-tiny", "fpv motion clip.mp4 -o m.csv --work-width 10", "--work-width"),
     ("motion-no-out", "fpv motion clip.mp4", "--out"),
     ("motion-unknown-option", "fpv motion clip.mp4 -o m.csv --bogus", "--bogus"),
+    ("motion-source-unknown", "fpv motion clip.mp4 -o m.csv --source magic", "magic"),
+    ("motion-source-gyro-without-gyro", "fpv motion clip.mp4 -o m.csv --source gyro", "needs a gyro"),
     # fpv score
     ("score-nothing", "fpv score", "either"),
     ("score-video-and-motion", "fpv score clip.mp4 --motion motion.csv", "either"),
@@ -173,6 +177,9 @@ CASES: list[tuple[str, str, str]] = [
     ("stabilize-anchor-zero", "fpv stabilize clip.mp4 -o o.mp4 --anchor-threshold 0", "--anchor-threshold"),
     ("stabilize-truncated", "fpv stabilize half.mp4 -o o.mp4", "truncated"),
     ("stabilize-report-is-json", "fpv stabilize clip.mp4 -o o.mp4 --report r.html --json r.html", "also given"),
+    ("score-source-unknown", "fpv score clip.mp4 --source magic", "magic"),
+    ("stabilize-source-unknown", "fpv stabilize clip.mp4 -o o.mp4 --source magic", "magic"),
+    ("stabilize-source-gyro-without-gyro", "fpv stabilize clip.mp4 -o o.mp4 --source gyro", "needs a gyro"),
     # synth fpv
     ("synth-fpv-yaw-nan", "synth fpv o.mp4 --yaw-amp nan", "finite"),
     ("synth-fpv-yaw-huge", "synth fpv o.mp4 --yaw-amp 1e9", "out of range"),
@@ -228,6 +235,67 @@ CASES: list[tuple[str, str, str]] = [
     ("dashcam-init-not-empty", "dashcam init notarc", "not empty"),
     ("dashcam-init-existing-archive", "dashcam init arc", "already"),
     ("dashcam-unknown-command", "dashcam frobnicate arc", "frobnicate"),
+    # dashcam ingest of several files, folders and sidecar GPS logs
+    ("dashcam-ingest-folder-without-videos", "dashcam ingest arc folder", "holds no videos"),
+    ("dashcam-ingest-sidecar-gps-empty", "dashcam ingest arc vids/v1.mp4", "0 valid GPS fix"),
+    ("dashcam-ingest-folder-all-skipped", "dashcam ingest arc vids", "none of the 1 videos"),
+    ("dashcam-ingest-no-gps-anywhere", "dashcam ingest arc clip.mp4", "no GPS for clip.mp4"),
+    (
+        "dashcam-ingest-start-with-several",
+        "dashcam ingest arc clip.mp4 vids/v1.mp4 --start 2026-05-04T08:00:00Z",
+        "several",
+    ),
+    ("dashcam-ingest-tz-offset", "dashcam ingest arc clip.mp4 --tz-offset 20", "--tz-offset"),
+    ("dashcam-ingest-max-gap", "dashcam ingest arc clip.mp4 --max-gap -1", "--max-gap"),
+    ("dashcam-ingest-preset", "dashcam ingest arc clip.mp4 --preset turbo", "turbo"),
+    ("dashcam-ingest-workers-zero", "dashcam ingest arc clip.mp4 --workers 0", "--workers"),
+    ("dashcam-ingest-json-is-input", "dashcam ingest arc clip.mp4 --gps good.gpx --json clip.mp4", "overwrite"),
+    ("dashcam-ingest-aligner", "dashcam ingest arc clip.mp4 --gps good.gpx --aligner magic", "magic"),
+    ("dashcam-ingest-gps-not-a-track", "dashcam ingest arc clip.mp4 --gps motion.csv", "not a GPS track"),
+    # dashcam find / clip
+    ("dashcam-find-nothing", "dashcam find arc", "nothing to find"),
+    ("dashcam-find-near-one-number", "dashcam find arc --near 48.1", "2 comma-separated"),
+    ("dashcam-find-near-off-earth", "dashcam find arc --near 95,11", "not a position"),
+    ("dashcam-find-bbox-three", "dashcam find arc --bbox 1,2,3", "4 comma-separated"),
+    ("dashcam-find-bbox-inverted", "dashcam find arc --bbox 11.6,48.1,11.5,48.2", "not a box"),
+    ("dashcam-find-from-words", "dashcam find arc --from yesterday", "ISO 8601"),
+    ("dashcam-find-window-backwards", "dashcam find arc --from 2026-05-05 --to 2026-05-04", "not after"),
+    ("dashcam-find-radius-nan", "dashcam find arc --near 48.1,11.5 --radius nan", "finite"),
+    ("dashcam-find-radius-negative", "dashcam find arc --near 48.1,11.5 --radius -5", "--radius"),
+    ("dashcam-find-json-no-folder", "dashcam find arc --near 48.1,11.5 --json nodir/f.json", "does not exist"),
+    ("dashcam-find-json-extension", "dashcam find arc --near 48.1,11.5 --json f.txt", "extension"),
+    ("dashcam-find-not-archive", "dashcam find notarc --near 48.1,11.5", "not an egovid archive"),
+    ("dashcam-clip-no-moment", "dashcam clip arc -o c.mp4", "--at"),
+    ("dashcam-clip-at-and-near", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z --near 48.1,11.5", "one of"),
+    ("dashcam-clip-extension", "dashcam clip arc -o c.txt --at 2026-05-04T08:00:00Z", "extension"),
+    ("dashcam-clip-no-folder", "dashcam clip arc -o nodir/c.mp4 --at 2026-05-04T08:00:00Z", "does not exist"),
+    ("dashcam-clip-at-words", "dashcam clip arc -o c.mp4 --at yesterday", "ISO 8601"),
+    ("dashcam-clip-before-negative", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z --before -1", "--before"),
+    ("dashcam-clip-after-inf", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z --after inf", "finite"),
+    ("dashcam-clip-crf", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z --crf 99", "--crf"),
+    ("dashcam-clip-radius-zero", "dashcam clip arc -o c.mp4 --near 48.1,11.5 --radius 0", "--radius"),
+    ("dashcam-clip-unknown-drive", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z --drive nosuch", "nosuch"),
+    ("dashcam-clip-nothing-then", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z", "no drive"),
+    # dashcam forget / lock / unlock / check / report --html
+    ("dashcam-forget-nothing", "dashcam forget arc", "nothing to forget"),
+    ("dashcam-forget-unknown-drive", "dashcam forget arc nosuch", "nosuch"),
+    ("dashcam-forget-older-than-words", "dashcam forget arc --older-than soon", "not a duration"),
+    ("dashcam-forget-older-than-negative", "dashcam forget arc --older-than -5d", "not a duration"),
+    ("dashcam-forget-keep-bytes-words", "dashcam forget arc --keep-bytes lots", "not a size"),
+    ("dashcam-forget-json-no-folder", "dashcam forget arc nosuch --json nodir/x.json", "does not exist"),
+    ("dashcam-lock-unknown-drive", "dashcam lock arc nosuch", "nosuch"),
+    ("dashcam-lock-no-drive", "dashcam lock arc", "missing argument"),
+    ("dashcam-lock-not-archive", "dashcam lock notarc d1", "not an egovid archive"),
+    ("dashcam-unlock-unknown-drive", "dashcam unlock arc nosuch", "nosuch"),
+    ("dashcam-check-not-archive", "dashcam check notarc", "not an egovid archive"),
+    ("dashcam-check-missing", "dashcam check nosuch", "not found"),
+    ("dashcam-check-file", "dashcam check clip.mp4", "not a folder"),
+    ("dashcam-check-unknown-option", "dashcam check arc --fix", "--fix"),
+    ("dashcam-report-html-extension", "dashcam report arc --html r.txt", "extension"),
+    ("dashcam-report-html-no-folder", "dashcam report arc --html nodir/r.html", "does not exist"),
+    ("dashcam-report-html-is-json", "dashcam report arc --json r.json --html r.json", "also given"),
+    ("dashcam-report-colour", "dashcam report arc --colour pink", "pink"),
+    ("dashcam-report-html-not-archive", "dashcam report notarc --html r.html", "not an egovid archive"),
     # voeval
     ("voeval-run-size", "voeval run --out r1 --size big", "WIDTHxHEIGHT"),
     ("voeval-run-levels", "voeval run --out r1 --levels lossless,crf99", "crf99"),
@@ -235,6 +303,19 @@ CASES: list[tuple[str, str, str]] = [
     ("voeval-run-out-is-file", "voeval run --out clip.mp4", "is a file"),
     ("voeval-run-out-no-parent-writable", "voeval run --out motion.csv/sub", "not a folder"),
     ("voeval-run-workers", "voeval run --out r1 --workers 0", "--workers"),
+    ("voeval-run-sequence-format", "voeval run --out r1 --sequence bogus:folder", "known format"),
+    ("voeval-run-sequence-no-format", "voeval run --out r1 --sequence folder", "FORMAT:PATH"),
+    ("voeval-run-sequence-missing-folder", "voeval run --out r1 --sequence tum:nosuch", "does not exist"),
+    ("voeval-run-sequence-file-not-folder", "voeval run --out r1 --sequence tum:clip.mp4", "not a folder"),
+    ("voeval-run-sequence-tum-empty", "voeval run --out r1 --sequence tum:folder", "rgb.txt"),
+    ("voeval-run-sequence-kitti-empty", "voeval run --out r1 --sequence kitti:folder", "image_0"),
+    ("voeval-run-sequence-gyro-missing", "voeval run --out r1 --sequence gyro:nosuch.mp4", "does not exist"),
+    ("voeval-run-sequence-gyro-none", "voeval run --out r1 --sequence gyro:clip.mp4", "no embedded gyro"),
+    ("voeval-run-vo-unknown", "voeval run --out r1 --vo bogus", "bogus"),
+    ("voeval-run-scenes-unknown", "voeval run --out r1 --scenes bogus", "bogus"),
+    ("voeval-run-seeds-words", "voeval run --out r1 --seeds a", "integers"),
+    ("voeval-run-anchor", "voeval run --out r1 --anchor bogus", "bogus"),
+    ("voeval-report-norm", "voeval report folder --norm bogus", "bogus"),
     ("voeval-report-missing", "voeval report nosuch", "no results"),
     ("voeval-report-file", "voeval report clip.mp4", "no results"),
     # demo and the top level
@@ -257,9 +338,32 @@ def test_bad_input_gets_one_error_and_changes_nothing(ws, case, capsys, monkeypa
     assert snapshot(ws) == before, "files changed"
 
 
-def test_the_table_is_big_enough():
-    commands = {c[1].split()[0] for c in CASES}
-    assert len(CASES) >= 60 and {"fpv", "synth", "dashcam", "voeval", "demo"} <= commands
+def _commands() -> set[str]:
+    """Every command of the CLI, as "group command" (or "command" at the top level)."""
+    import typer.main
+
+    from egovid.cli import app
+
+    out: set[str] = set()
+
+    def walk(cmd, prefix: str) -> None:
+        if hasattr(cmd, "commands"):  # a group
+            for name, sub in cmd.commands.items():
+                walk(sub, f"{prefix} {name}".strip())
+        else:
+            out.add(prefix)
+
+    walk(typer.main.get_command(app), "")
+    return out
+
+
+def test_the_table_is_big_enough_and_covers_every_command(capsys):
+    covered = {" ".join(c[1].split()[:2]) for c in CASES} | {c[1].split()[0] for c in CASES}
+    missing = sorted(_commands() - covered)
+    with capsys.disabled():  # shown in the test output even with -q
+        print(f"\n[fuzz] {len(CASES)} bad inputs over {len(_commands()) - len(missing)} of {len(_commands())} commands")
+    assert len(CASES) >= 60
+    assert not missing, f"commands with no bad-input case: {missing}"
 
 
 SUBPROCESS_SAMPLE = [

@@ -51,8 +51,7 @@ def init(
     from egovid.dashcam.vpx import self_test
 
     output_folder(archive, what="archive folder")
-    ar = Archive.create(archive, db, blobs)
-    FleetStore(ar.catalogue)  # the fleet tables (and PostGIS where the server has it)
+    ar = Archive.create(archive, db, blobs, setup=FleetStore)  # the fleet tables (PostGIS where the server has it)
     cat = ar.meta["catalogue"]
     where = "SQLite" if cat["backend"] == "sqlite" else f"PostgreSQL {redact_url(cat['url'])}, schema {cat['schema']}"
     console.print(f"archive {archive} created (catalogue: {where}; blobs: {ar.blobs.url}; codec: {self_test()})")
@@ -675,11 +674,12 @@ def check(
         rep = check_archive(archive, repair=repair, deep=deep, progress=cb)
     for f in rep.findings:
         mark = "repaired" if f.repaired else f.severity
-        console.print(f"{mark:>8}  {f.problem}" + (f" ({f.fix})" if f.fix else ""), highlight=False)
+        console.print(f"{mark:>8}  {f.problem}" + (f" ({f.fix})" if f.fix else ""), highlight=False, soft_wrap=True)
     mib = rep.blob_bytes / 2**20
     decoded = f", {rep.decoded_frames} frames decoded and compared" if deep else ""
     console.print(
-        f"{rep.drives} drive(s), {rep.segments} segment(s), {rep.blobs} bitstream(s) ({mib:.1f} MiB) verified{decoded}"
+        f"{rep.drives} drive(s), {rep.segments} segment(s), {rep.blobs} bitstream(s) ({mib:.1f} MiB) verified{decoded}",
+        soft_wrap=True,
     )
     if rep.errors:
         fix = (
@@ -688,4 +688,4 @@ def check(
             else f"run `egovid dashcam check {archive} --repair`"
         )
         raise EgovidError(f"archive {archive} has {len(rep.errors)} problem(s) (listed above)", fix)
-    console.print(f"archive {archive} is sound")
+    console.print(f"archive {archive} is sound", soft_wrap=True)

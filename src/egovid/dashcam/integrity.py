@@ -103,7 +103,8 @@ def write_backup(db: sqlite3.Connection, catalogue: Path) -> Path:
             dst.close()
         os.replace(tmp, target)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        for side in ("", "-wal", "-shm", "-journal"):  # SQLite's own files beside it too
+            tmp.with_name(tmp.name + side).unlink(missing_ok=True)
         raise
     finally:
         untrack_temp(tmp)

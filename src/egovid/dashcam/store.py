@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -62,11 +63,18 @@ class Archive:
             self.locks = FileLocks(self.root)
 
     @classmethod
-    def create(cls, root: str | os.PathLike, db: str | None = None, blobs: str | None = None) -> Archive:
+    def create(
+        cls,
+        root: str | os.PathLike,
+        db: str | None = None,
+        blobs: str | None = None,
+        setup: Callable[[Catalogue], object] | None = None,
+    ) -> Archive:
         """Create an empty archive at ``root``. ``db``: None or ``sqlite`` for the embedded SQLite
         catalogue (``root/catalogue.sqlite``), or a ``postgresql://`` URL: the catalogue then lives
         in a new schema of that database. ``blobs``: None for the folder ``root/blobs``, or an
-        fsspec URL (``s3://BUCKET/PREFIX``)."""
+        fsspec URL (``s3://BUCKET/PREFIX``). ``setup``: called with the new catalogue before the
+        archive appears (more tables: a failure there, a full disk say, leaves no archive)."""
         root = Path(root)
         settings = catalogue_settings(db)
         if (root / MARKER).exists():
@@ -79,7 +87,7 @@ class Archive:
             if any(True for _ in store.files()):
                 raise EgovidError(f"blob store {store.url} is not empty", "give a new prefix")
         if settings["backend"] != "sqlite":  # connect first: a bad URL leaves no folder behind
-            open_catalogue(root, settings, create=True).close()
+            _new_catalogue(root, settings, setup)
         # Built in a hidden sibling folder and renamed into place: a full disk or an interruption
         # leaves nothing behind.
         root.parent.mkdir(parents=True, exist_ok=True)
@@ -89,7 +97,7 @@ class Archive:
             if blobs is None:
                 (tmp / "blobs").mkdir()
             if settings["backend"] == "sqlite":
-                open_catalogue(tmp, settings, create=True).close()
+                _new_catalogue(tmp, settings, setup)
             meta = {"format": FORMAT_VERSION, "catalogue": settings}
             if blobs is not None:
                 meta["blobs"] = blobs
@@ -154,6 +162,15 @@ class Archive:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _new_catalogue(root: Path, settings: dict, setup: Callable[[Catalogue], object] | None) -> None:
+    cat = open_catalogue(root, settings, create=True)
+    try:
+        if setup is not None:
+            setup(cat)
+    finally:
+        cat.close()
 
 
 def read_marker(root: Path) -> dict:

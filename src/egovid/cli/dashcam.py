@@ -681,6 +681,8 @@ def check(
         f"{rep.drives} drive(s), {rep.segments} segment(s), {rep.blobs} bitstream(s) ({mib:.1f} MiB) verified{decoded}",
         soft_wrap=True,
     )
+    if len(rep.errors) == 1 and not repair:  # the one problem is the error line
+        raise EgovidError(rep.errors[0].problem, rep.errors[0].fix or f"run `egovid dashcam check {archive} --repair`")
     if rep.errors:
         fix = (
             "what --repair could not rebuild must come from a backup of the archive, or its drives re-ingested"

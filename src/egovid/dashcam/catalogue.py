@@ -476,10 +476,14 @@ class SqliteCatalogue(_SqlCatalogue):
     def _committed(self) -> None:
         """Copy the catalogue to its backup after a commit that changed it (``check --repair``
         restores a damaged or deleted catalogue from it)."""
-        from egovid.dashcam.integrity import write_backup
+        from egovid.dashcam.integrity import backup_path, write_backup
 
         if self._db.total_changes != self._saved:
-            write_backup(self._db, self.file)
+            try:
+                write_backup(self._db, self.file)
+            except BaseException:  # a full disk, say: no backup rather than one silently behind
+                backup_path(self.file).unlink(missing_ok=True)
+                raise
             self._saved = self._db.total_changes
 
     def _begin(self) -> None:

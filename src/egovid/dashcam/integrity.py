@@ -291,7 +291,8 @@ def check_archive(
         problem = _file_problem(root / CATALOGUE_FILE, SCHEMA_VERSION)
         if problem is not None:
             if not repair:
-                report.add("error", f"catalogue {problem}", repair_fix(root))
+                exc = unusable_catalogue(root / CATALOGUE_FILE, problem)
+                report.add("error", exc.problem, exc.fix or "")
                 return report
             if not _repair_sqlite(root, problem, report, SCHEMA_VERSION):
                 return report

@@ -234,6 +234,33 @@ def test_repair_removes_leftovers_of_interrupted_ingests(arc, capsys):
     assert code == 0 and not part.exists(), out + err
 
 
+def test_archive_on_a_read_only_disk_is_read_not_called_damaged(built, tmp_path, capsys):
+    """An archive on a read-only mount (a backup disk): SQLite cannot make the WAL's shared-memory
+    file there, which used to read as a damaged catalogue. Reading works; writing is one error."""
+    if os.geteuid() != 0:
+        pytest.skip("a read-only mount needs root (the tests run as root in CI); not root here")
+    import subprocess
+
+    from test_failures import _tmpfs
+
+    with _tmpfs("4m") as d:
+        shutil.copytree(built, d / "arc")
+        subprocess.run(["mount", "-o", "remount,ro", str(d)], check=True)
+        arc = d / "arc"
+        code, out, err = invoke(["dashcam", "check", arc, "--deep"], capsys)
+        assert code == 0 and "is sound" in out, out + err
+        for args in (
+            ["list", arc],
+            ["find", arc, "--from", "2026-01-01"],
+            ["extract", arc, "a", "-o", tmp_path / "a.mkv"],
+        ):
+            code, out, err = invoke(["dashcam", *args], capsys)
+            assert code == 0, out + err
+        assert (tmp_path / "a.mkv").exists()
+        one_error(*invoke(["dashcam", "check", arc, "--repair"], capsys), "read-only")
+        one_error(*invoke(["dashcam", "lock", arc, "a"], capsys), "read-only")
+
+
 def test_catalogue_from_a_newer_egovid_asks_for_an_upgrade(arc, capsys):
     sql(arc, "UPDATE meta SET value = '999' WHERE key = 'schema_version'")
     one_error(*invoke(["dashcam", "list", arc], capsys), "newer egovid", "upgrade egovid")

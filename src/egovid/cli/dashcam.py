@@ -665,11 +665,13 @@ def check(
 
     Prints what it found; exits with status 2 when something cannot be read back.
     """
-    from egovid.cli.validate import input_folder
+    from egovid.cli.validate import input_folder, writable_folder
     from egovid.dashcam.integrity import check_archive
     from egovid.errors import EgovidError
 
     input_folder(archive, "archive folder")
+    if repair:  # it may write: refused up front on a read-only disk (a plain check works there)
+        writable_folder(archive, "archive folder", "--repair")
     with staged_progress() as cb:
         rep = check_archive(archive, repair=repair, deep=deep, progress=cb)
     for f in rep.findings:

@@ -38,8 +38,19 @@ def repair_fix(root: str | os.PathLike) -> str:
 
 def sqlite_uri(path: Path, mode: str) -> str:
     """An SQLite URI for ``path`` opened with ``mode`` (``ro``, ``rw``: the file must exist;
-    ``rwc``: create it)."""
-    return f"file:{urllib.parse.quote(str(path))}?mode={mode}"
+    ``rwc``: create it). ``rw`` on a read-only disk (an archive on a backup drive, a read-only
+    mount) opens it read-only and immutable: SQLite could not create the WAL's shared-memory file
+    there, and nothing can change it meanwhile. A write then fails as a read-only file system."""
+    uri = f"file:{urllib.parse.quote(str(path))}"
+    if mode == "rw" and not os.access(Path(path).parent, os.W_OK):
+        wal = Path(f"{path}-wal")
+        if wal.exists() and wal.stat().st_size > 0:
+            raise EgovidError(
+                f"the catalogue {path} is on a read-only disk with an unfinished journal ({wal.name})",
+                "copy the archive folder to a writable disk and open it there",
+            )
+        return f"{uri}?mode=ro&immutable=1"
+    return f"{uri}?mode={mode}"
 
 
 def catalogue_problem(db: sqlite3.Connection, newest_schema: int) -> str | None:

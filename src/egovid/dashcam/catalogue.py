@@ -453,24 +453,27 @@ class SqliteCatalogue(_SqlCatalogue):
         self._saved = -1  # total_changes when the backup was last written
         if not create and not self.file.exists():  # never a fresh empty catalogue beside old blobs
             raise integrity.unusable_catalogue(self.file, "missing")
+        if not create and self.file.stat().st_size == 0:  # SQLite would take it for a new database
+            raise integrity.unusable_catalogue(self.file, "empty (0 bytes)")
         try:
             uri = integrity.sqlite_uri(self.file, "rwc" if create else "rw")
             self._db = sqlite3.connect(uri, uri=True, isolation_level=None, timeout=30.0)
             self._db.execute("PRAGMA foreign_keys = ON")
-            self._db.execute("PRAGMA journal_mode = WAL")
-            self._db.execute("PRAGMA synchronous = FULL")
+            # checked before anything that may write (the journal mode): a damaged file stays as it is
+            problem = None if create else integrity.catalogue_problem(self._db, SCHEMA_VERSION)
+            if problem is None:
+                self._db.execute("PRAGMA journal_mode = WAL")
+                self._db.execute("PRAGMA synchronous = FULL")
         except sqlite3.DatabaseError as exc:
             raise integrity.unusable_catalogue(self.file, f"damaged ({exc})") from None
+        if problem is not None:
+            self._db.close()
+            raise integrity.unusable_catalogue(self.file, problem)
         if create:
             with self.transaction():
                 for stmt in self._ddl():
                     self._db.execute(stmt)
                 self.set_meta("schema_version", str(SCHEMA_VERSION))
-        else:
-            problem = integrity.catalogue_problem(self._db, SCHEMA_VERSION)
-            if problem is not None:
-                self._db.close()
-                raise integrity.unusable_catalogue(self.file, problem)
         self._saved = self._db.total_changes
 
     def _committed(self) -> None:

@@ -322,6 +322,8 @@ def check_archive(
 def _file_problem(path: Path, newest_schema: int) -> str | None:
     if not path.exists():
         return "missing"
+    if path.stat().st_size == 0:
+        return "empty (0 bytes)"
     try:
         db = sqlite3.connect(sqlite_uri(path, "rw"), uri=True)
     except sqlite3.DatabaseError as exc:

@@ -275,7 +275,7 @@ CASES: list[tuple[str, str, str]] = [
     ("dashcam-clip-crf", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z --crf 99", "--crf"),
     ("dashcam-clip-radius-zero", "dashcam clip arc -o c.mp4 --near 48.1,11.5 --radius 0", "--radius"),
     ("dashcam-clip-unknown-drive", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z --drive nosuch", "nosuch"),
-    ("dashcam-clip-nothing-then", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z", "no drive"),
+    ("dashcam-clip-nothing-then", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z", "not recorded"),
     # dashcam forget / lock / unlock / check / report --html
     ("dashcam-forget-nothing", "dashcam forget arc", "nothing to forget"),
     ("dashcam-forget-unknown-drive", "dashcam forget arc nosuch", "nosuch"),

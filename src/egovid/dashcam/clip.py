@@ -94,7 +94,7 @@ def plan_clip(
     if best is None:
         where = iso(at) if at is not None else f"within {radius:g} m of {near[0]:.6f},{near[1]:.6f}"
         if at is not None:
-            what = f"drive {drive} was not recorded at {where}" if drive else f"no drive was recorded at {where}"
+            what = f"drive {drive} was not recorded at {where}" if drive else f"{where} is not recorded in any drive"
         else:
             what = f"drive {drive} never passed {where}" if drive else f"no drive passed {where}"
         raise EgovidError(what, "see `egovid dashcam find` for when and where drives were recorded")

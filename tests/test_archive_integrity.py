@@ -350,3 +350,28 @@ def test_sigterm_mid_ingest_leaves_the_archive_as_it_was(built, tmp_path):
         assert after[name] == before[name], name
     r = run_cli("dashcam", "check", root)
     assert r.returncode == 0, r.stdout + r.stderr  # at most an unreferenced bitstream: a note for gc
+
+
+def test_a_backup_that_cannot_be_written_is_said_and_never_left_behind(tmp_path, monkeypatch):
+    """The disk fills between the commit and its backup: the error says the change is saved and
+    the backup is not, and the old backup (one commit behind) is gone rather than kept."""
+    import errno
+
+    from egovid.dashcam import integrity
+    from egovid.dashcam.catalogue import SqliteCatalogue
+    from egovid.errors import EgovidError
+
+    cat = SqliteCatalogue(tmp_path / "catalogue.sqlite", create=True)
+    assert integrity.backup_path(cat.file).exists()
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(integrity, "write_backup", full)
+    with pytest.raises(EgovidError) as info, cat.transaction():
+        cat.set_meta("note", "kept")
+    assert "saved" in info.value.problem and "no space left" in info.value.one_line().lower()
+    assert "--repair" in info.value.one_line()
+    assert not integrity.backup_path(cat.file).exists()
+    cat.close()
+    assert sqlite3.connect(str(cat.file)).execute("SELECT value FROM meta WHERE key = 'note'").fetchone() == ("kept",)

@@ -484,9 +484,18 @@ class SqliteCatalogue(_SqlCatalogue):
         if self._db.total_changes != self._saved:
             try:
                 write_backup(self._db, self.file)
-            except BaseException:  # a full disk, say: no backup rather than one silently behind
+            except BaseException as exc:  # a full disk, say: no backup rather than one silently behind
                 backup_path(self.file).unlink(missing_ok=True)
-                raise
+                if not isinstance(exc, OSError | sqlite3.Error):
+                    raise
+                from egovid.errors import user_error
+
+                why = user_error(exc)
+                raise EgovidError(
+                    "the change is saved in the catalogue, but its backup could not be written "
+                    f"({why.problem if why is not None else exc})",
+                    f"free some space, then run `egovid dashcam check {self.file.parent} --repair` to write it",
+                ) from exc
             self._saved = self._db.total_changes
 
     def _begin(self) -> None:

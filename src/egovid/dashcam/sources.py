@@ -171,8 +171,8 @@ def plan_ingest(
     if not sources:
         first = skipped[0][1] if skipped else "nothing to ingest"
         raise EgovidError(
-            f"none of the {len(files)} videos can be ingested (first: {first})",
-            "see the reason above; give GPS logs with --gps FILE where the videos have none",
+            f"none of the {len(files)} videos can be ingested (the first: {first})",
+            "ingest the files one by one to see each reason; give GPS logs with --gps FILE where the videos have none",
         )
     trips = plan_trips([s.file_info() for s in sources.values()], skipped=skipped, max_gap=max_gap, join=join)
     return IngestPlan(trips, sources)

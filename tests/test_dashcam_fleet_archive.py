@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from egovid.dashcam.gps import read_track
+from egovid.errors import EgovidError
 from egovid.io.video import iter_frames
 from egovid.synth.drive import DriveSpec, Light, render_drive
 from test_dashcam_fleet_map import browse
@@ -125,6 +126,21 @@ def test_three_loop_files_make_one_trip(fleet):
     for k in (len(src) // 3 - 1, len(src) // 3, 2 * len(src) // 3):
         err = [np.mean((got[k] - src[j]) ** 2) for j in (k - 1, k, k + 1)]
         assert int(np.argmin(err)) == 1
+
+
+def test_a_log_beside_the_first_loop_file_covers_the_next_ones(fleet, tmp_path):
+    from egovid.dashcam.sources import ClockOptions, examine
+
+    files = fleet["files"]
+    for f in files:
+        (tmp_path / f.name).symlink_to(f)
+    log = tmp_path / (files[0].stem + ".gpx")  # a logger's one file per drive, named after its first file
+    shutil.copy(fleet["dir"] / "day3.gpx", log)
+    src = examine(tmp_path / files[2].name, None, ClockOptions())
+    assert src.gps_source == str(log) and src.clock.source == "creation_time"
+    shutil.copy(fleet["drives"]["a"][0], tmp_path / "other.mp4")  # recorded two days before the log
+    with pytest.raises(EgovidError, match="--gps"):  # so not placed in it
+        examine(tmp_path / "other.mp4", None, ClockOptions())
 
 
 def test_find_near_box_and_time(fleet):

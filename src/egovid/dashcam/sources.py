@@ -4,8 +4,9 @@ drives (trips) they make.
 For every file :func:`examine` finds:
 
 * its GPS: ``--gps`` (one log may cover many files), else the file beside it with the same name
-  (.gpx/.nmea/.csv), else the video's own (:mod:`egovid.dashcam.gps_embedded`); the video's own GPS
-  is read even when a log is given, since its GPS time is the best clock there is;
+  (.gpx/.nmea/.csv), else the video's own (:mod:`egovid.dashcam.gps_embedded`), else another log in
+  its folder that its camera clock puts it in (one log per drive, beside the drive's first file);
+  the video's own GPS is read even when a log is given, since its GPS time is the best clock there is;
 * its clock (:mod:`egovid.dashcam.clock`): GPS time, else the camera clock checked against the log;
 * its kind (drive, event, parking) and camera (front, rear, …) from its folder and name.
 
@@ -16,6 +17,7 @@ cannot be used are listed with the reason. Nothing is decoded here but the first
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -78,6 +80,40 @@ def _beside(video: Path) -> Path | None:
         return None
 
 
+@functools.lru_cache(maxsize=64)
+def _read_log(path: Path, mtime: float) -> GpsTrack | None:
+    try:
+        return read_track(path)
+    except EgovidError:
+        return None
+
+
+def _folder_log(path: Path, info: VideoInfo, times: np.ndarray, clock: ClockOptions) -> tuple[GpsTrack, str] | None:
+    """A GPS log in the video's folder that covers it, for a video with no GPS of its own: loggers
+    and some cameras write one log per drive, named after its first file, so the later loop files of
+    the drive have none beside them. A log counts only where the video's own clock (creation_time,
+    file name, ``--tz-offset``) puts the video inside it (:func:`resolve_clock`'s coverage check)."""
+    from egovid.dashcam.ingest.stages import GPS_EXTENSIONS
+
+    exts = {e.lower() for e in GPS_EXTENSIONS}
+    created, named = parse_creation_time(info.creation_time), name_time(path.name)
+    if created is None and named is None:
+        return None  # nothing would place the video inside another file's log
+    cands = sorted(f for f in path.parent.iterdir() if f.is_file() and f.suffix.lower() in exts)
+    duration = float(times[-1]) + 1.0 / max(info.fps, 1e-6)
+    for f in cands:
+        track = _read_log(f, f.stat().st_mtime)
+        if track is None:
+            continue
+        try:
+            resolve_clock(duration, video_name=path.name, track=track, creation_time=created, file_time=named,
+                          tz_offset_h=clock.tz_offset_h, gps_offset=clock.gps_offset)  # fmt: skip
+        except EgovidError:
+            continue
+        return track, str(f)
+    return None
+
+
 def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions) -> FileSource:
     """Look at one file (see the module docstring); raises :class:`EgovidError` naming what is
     missing (a video that does not decode, no GPS anywhere: ``--gps``, a clock no GPS confirms)."""
@@ -98,6 +134,10 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions)
             track, source = read_track(side), str(side)
     if track is None and embedded is not None:
         track, source = embedded.track, f"embedded: {embedded.reader}"
+    if track is None:
+        folder_log = _folder_log(path, info, times, clock)
+        if folder_log is not None:
+            track, source = folder_log
     if track is None:
         raise EgovidError(
             f"no GPS for {path.name}: none embedded in the video (ExifTool, NMEA text track) and no "

@@ -218,8 +218,8 @@ def test_lock_and_forget_a_root_with_dependents(fleet, tmp_path):
     r = run_cli("dashcam", "forget", root, "--older-than", "0d", "--dry-run")
     assert "kept a: locked" in r.stderr and "kept b: locked" in r.stderr
     assert f"would forget 1 drive(s): {trip}" in r.stdout
-    r = run_cli("dashcam", "forget", root, "--keep-bytes", "1K", "--dry-run")
-    assert f"would forget 1 drive(s): {trip}" in r.stdout
+    r = run_cli("dashcam", "forget", root, "--keep-bytes", "1K", "--dry-run", "--json", "-")
+    assert json.loads(r.stdout)["forgotten"] == [trip] and f"would forget 1 drive(s): {trip}" in r.stderr
     assert run_cli("dashcam", "unlock", root, "a", "b").returncode == 0
     r = run_cli("dashcam", "forget", root, "a", "--json", tmp_path / "forget.json")
     assert r.returncode == 0, r.stderr

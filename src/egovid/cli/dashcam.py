@@ -605,17 +605,18 @@ def forget_cmd(
     for name in skipped:
         err_console.print(f"kept {name}: locked")
     if not chosen:
-        console.print("nothing to forget")
+        if json_out is not None:
+            _write_json(json_out, {"forgotten": [], "skipped_locked": skipped, "bytes_freed": 0})
+        (err_console if json_out == "-" else console).print("nothing to forget")
         return
     rep = forget_drives(ar, fleet, chosen, verify=verify, dry_run=dry_run, say=err_console.print)
     rep.skipped_locked = skipped
     verb = "would forget" if dry_run else "forgot"
-    console.print(f"{verb} {len(rep.forgotten)} drive(s): {', '.join(rep.forgotten)}")
+    out = err_console if json_out == "-" else console  # stdout holds only the JSON then
+    out.print(f"{verb} {len(rep.forgotten)} drive(s): {', '.join(rep.forgotten)}")
     for name, needers in rep.kept_as_reference.items():
-        console.print(f"  {name}: kept only the frames {', '.join(needers)} are coded against (hidden)")
-    console.print(
-        f"{'would free' if dry_run else 'freed'} {rep.bytes_freed / 1024**2:.2f} MiB ({rep.bytes_freed} bytes)"
-    )
+        out.print(f"  {name}: kept only the frames {', '.join(needers)} are coded against (hidden)")
+    out.print(f"{'would free' if dry_run else 'freed'} {rep.bytes_freed / 1024**2:.2f} MiB ({rep.bytes_freed} bytes)")
     if json_out is not None:
         _write_json(json_out, rep.to_dict())
 

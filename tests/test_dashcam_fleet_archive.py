@@ -105,6 +105,8 @@ def fleet(tmp_path_factory):
     assert "skipped" in r.stderr and "0004F.MP4" in r.stderr
     for name in ("a", "b"):
         assert run_cli("dashcam", "extract", root, name, "-o", d / f"{name}-ref.mkv").returncode == 0
+    r = run_cli("dashcam", "ingest", root, loops, "--gps", d / "day3.gpx")  # the same card again
+    assert r.returncode == 0 and "nothing new" in r.stdout and "0004F.MP4" in r.stderr, r.stdout + r.stderr
     return {"root": root, "dir": d, "drives": drives, "files": files, "trip": json.loads((d / "trip.json").read_text())}
 
 

@@ -186,11 +186,19 @@ def ingest(
         prepared = prepare(ar, plan, name=name, lock_events=lock_events)
     for path, why in plan.skipped:
         err_console.print(f"skipped {path}: {why}")
+    skipped = [{"file": str(f), "reason": why} for f, why in plan.skipped]
     if not prepared:
+        if any(why.startswith("already in the archive") for _f, why in plan.skipped):
+            # The same card again (a sync job): nothing new is not a failure (the rest is listed above).
+            if json_out is not None:
+                from egovid.io.files import atomic_write_text
+
+                atomic_write_text(json_out, json.dumps({"drives": [], "failed": [], "skipped": skipped}, indent=1))
+            console.print("nothing new: the drives of these videos are already in the archive")
+            return
         raise EgovidError("nothing to ingest: every video was skipped", "see the reasons above")
     fleet = {p.name: p for p in prepared}
     drives = [drive_input(p) for p in prepared]
-    skipped = [{"file": str(f), "reason": why} for f, why in plan.skipped]
     if len(drives) == 1 and config.scheduler is None:
         with staged_progress() as cb:
             rep = ingest_drive(ar, drives[0], opts, progress=cb)

@@ -232,6 +232,11 @@ def test_lock_and_forget_a_root_with_dependents(fleet, tmp_path):
     assert 0 < rep["frames_kept"]["a"] < 0.75 * before_frames_a and rep["bytes_freed"] > 0
     r = run_cli("dashcam", "list", root)
     assert " a " not in r.stdout and " b " in r.stdout
+    db = sqlite3.connect(str(root / "catalogue.sqlite"))
+    (hidden,) = db.execute("SELECT name FROM drives WHERE name LIKE 'a~%'").fetchone()
+    db.close()
+    for key in ("a", hidden):  # the hidden reference is no drive of the user's any more
+        assert_one_error(run_cli("dashcam", "extract", root, key, "-o", tmp_path / "a.mkv"), f"no drive {key!r}")
     for name in ("b", trip):
         out = tmp_path / f"{name}-after.mkv"
         assert run_cli("dashcam", "extract", root, name, "-o", out).returncode == 0

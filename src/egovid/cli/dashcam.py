@@ -21,6 +21,20 @@ def _open(archive: Path):
     return open_archive(archive)
 
 
+def _user_drive(ar, key: str):
+    """A drive by name or id, as the user sees the archive: not one a forget hid (kept only for
+    the frames other drives are coded against)."""
+    from egovid.dashcam.fleetstore import hidden_drive_ids
+    from egovid.errors import EgovidError
+
+    d = ar.catalogue.drive(key)
+    hidden = hidden_drive_ids(ar.catalogue)
+    if d is None or d.id in hidden:
+        names = ", ".join(x.name for x in ar.catalogue.drives() if x.id not in hidden) or "none"
+        raise EgovidError(f"no drive {key!r} in {ar.root}", f"drives in the archive: {names}")
+    return d
+
+
 @app.command("init")
 def init(
     archive: Path = typer.Argument(..., help="Folder to create the archive in (new or empty)."),
@@ -287,7 +301,7 @@ def show(
 ) -> None:
     """Show how a drive is stored: its path sequences and segments."""
     ar = _open(archive)
-    d = ar.drive_or_fail(drive)
+    d = _user_drive(ar, drive)
     console.print(f"[bold]{d.name}[/] (id {d.id}): {d.frames} frames, {d.width}x{d.height} @ {d.fps:g} fps")
     console.print(f"source {d.source}\nGPS    {d.gps_source}")
     for s in ar.catalogue.sequences(drive_id=d.id):
@@ -324,7 +338,7 @@ def extract(
 
     ar = _open(archive)
     check_output(out, exts=".mkv .mp4")
-    d = ar.drive_or_fail(drive)
+    d = _user_drive(ar, drive)
     f0 = round((start or 0.0) * d.fps)
     f1 = d.frames if duration is None else min(d.frames, f0 + max(1, round(duration * d.fps)))
     if f0 >= d.frames:

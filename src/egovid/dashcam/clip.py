@@ -93,8 +93,10 @@ def plan_clip(
                 best = (moment, d, futc)
     if best is None:
         where = iso(at) if at is not None else f"within {radius:g} m of {near[0]:.6f},{near[1]:.6f}"
-        scope = f"drive {drive}" if drive else "any drive in the archive"
-        what = f"{scope} was not recorded at {where}" if at is not None else f"{scope} passed nowhere {where}"
+        if at is not None:
+            what = f"drive {drive} was not recorded at {where}" if drive else f"no drive was recorded at {where}"
+        else:
+            what = f"drive {drive} never passed {where}" if drive else f"no drive passed {where}"
         raise EgovidError(what, "see `egovid dashcam find` for when and where drives were recorded")
     moment, d, futc = best
     f0, f1 = window(futc, moment, before, after)

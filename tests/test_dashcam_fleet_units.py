@@ -38,6 +38,7 @@ def test_kinds_and_cameras_from_dashcam_names():
     assert file_kind("PA20240131-235959-000123R.MP4") == "parking"
     assert file_kind("NO20240131-235959-000123F.MP4") == "drive"
     assert file_channel("2024_0131_235959_0001ER.MP4") == "rear"
+    assert file_channel("240915_143027_001_RH.MP4") == "rear" and file_channel("240915_143027_001_FH.MP4") == "front"
     assert [file_channel(n) for n in ("2024_0131_235959_0001R.MP4", "20240131_235959_NF.mp4",
                                       "2024-01-31_23-59-59-left_repeater.mp4", "monday.mp4")] == [
         "rear", "front", "left_repeater", "front"]  # fmt: skip

@@ -96,6 +96,7 @@ def file_kind(path: str | os.PathLike) -> str:
 _CHANNEL = (
     re.compile(r"-(front|back|left_repeater|right_repeater|left_pillar|right_pillar)$", re.IGNORECASE),  # Tesla
     re.compile(r"^\d{8}_\d{6}_[NEPMIOABTXG]([FRI])", re.IGNORECASE),  # BlackVue
+    re.compile(r"^\d{6}_\d{6}_\d+_([FR])[HL]$", re.IGNORECASE),  # Nextbase 240915_143027_001_RH (camera, quality)
     re.compile(r"(?:\d|_)[EP]?([FRI])$", re.IGNORECASE),  # Viofo/Novatek …0001F / …0001EF, Thinkware …_F
 )
 _CHANNEL_NAMES = {"f": "front", "r": "rear", "i": "interior", "back": "rear"}

@@ -3,7 +3,8 @@ drives (trips) they make.
 
 For every file :func:`examine` finds:
 
-* its GPS: ``--gps`` (one log may cover many files), else the file beside it with the same name
+* its GPS: ``--gps`` (one log may cover many files; a file of a batch it does not cover keeps its
+  own, below), else the file beside it with the same name
   (.gpx/.nmea/.csv), else the video's own (:mod:`egovid.dashcam.gps_embedded`), else another log in
   its folder that its camera clock puts it in (one log per drive, beside the drive's first file);
   the video's own GPS is read even when a log is given, since its GPS time is the best clock there is;
@@ -114,9 +115,11 @@ def _folder_log(path: Path, info: VideoInfo, times: np.ndarray, clock: ClockOpti
     return None
 
 
-def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions) -> FileSource:
+def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions, *, batch: bool = False) -> FileSource:
     """Look at one file (see the module docstring); raises :class:`EgovidError` naming what is
-    missing (a video that does not decode, no GPS anywhere: ``--gps``, a clock no GPS confirms)."""
+    missing (a video that does not decode, no GPS anywhere: ``--gps``, a clock no GPS confirms).
+    ``batch``: the file is one of many sharing ``log``; where the log does not cover it, its own GPS
+    (beside it, or in the video) is used instead of giving up."""
     path = Path(video)
     info = probe(path)
     times = frame_times(path)
@@ -145,17 +148,33 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions)
             "give the drive's GPS log with --gps FILE",
         )
     duration = float(times[-1]) + 1.0 / max(info.fps, 1e-6)
-    vc = resolve_clock(
-        duration,
-        video_name=path.name,
-        start=clock.start,
-        embedded=embedded,
-        track=track,
-        creation_time=parse_creation_time(info.creation_time),
-        file_time=name_time(path.name),
-        tz_offset_h=clock.tz_offset_h,
-        gps_offset=clock.gps_offset,
-    )
+
+    def place(log_track: GpsTrack) -> VideoClock:
+        return resolve_clock(
+            duration,
+            video_name=path.name,
+            start=clock.start,
+            embedded=embedded,
+            track=log_track,
+            creation_time=parse_creation_time(info.creation_time),
+            file_time=name_time(path.name),
+            tz_offset_h=clock.tz_offset_h,
+            gps_offset=clock.gps_offset,
+        )
+
+    try:
+        vc = place(track)
+    except EgovidError:
+        if not batch or source != "--gps":
+            raise
+        side = _beside(path)
+        own = (read_track(side), str(side)) if side is not None else None
+        if own is None and embedded is not None:
+            own = (embedded.track, f"embedded: {embedded.reader}")
+        if own is None:
+            raise
+        track, source = own
+        vc = place(track)
     return FileSource(path, info, times, track, source, vc, file_kind(path), file_channel(path), embedded)
 
 
@@ -201,7 +220,7 @@ def plan_ingest(
     skipped: list[tuple[Path, str]] = []
     for k, f in enumerate(files):
         try:
-            sources[f] = examine(f, log, clock)
+            sources[f] = examine(f, log, clock, batch=not single)
         except EgovidError as e:
             if single:
                 raise

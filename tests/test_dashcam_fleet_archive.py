@@ -8,6 +8,7 @@ import datetime as dt
 import hashlib
 import itertools
 import json
+import os
 import shutil
 import signal
 import sqlite3
@@ -21,6 +22,7 @@ import numpy as np
 import pytest
 
 from egovid.dashcam.gps import read_track
+from egovid.errors import EgovidError
 from egovid.io.video import iter_frames
 from egovid.synth.drive import DriveSpec, Light, render_drive
 from test_dashcam_fleet_map import browse
@@ -96,14 +98,18 @@ def fleet(tmp_path_factory):
     assert run_cli("dashcam", "init", root).returncode == 0
     r = run_cli("dashcam", "ingest", root, drives["a"][0], "--gps", drives["a"][1])
     assert r.returncode == 0, r.stderr
-    r = run_cli("dashcam", "ingest", root, event)
-    assert r.returncode == 0 and "event (locked)" in r.stdout, r.stdout + r.stderr
-    r = run_cli("dashcam", "ingest", root, loops, "--gps", d / "day3.gpx", "--json", d / "trip.json")
+    # One batch: the day-3 log covers the loop files; the event file, outside it, keeps its own log.
+    r = run_cli("dashcam", "ingest", root, loops, event, "--gps", d / "day3.gpx", "--json", d / "batch.json")
     assert r.returncode == 0, r.stderr
-    assert "skipped" in r.stderr and "0004F.MP4" in r.stderr
+    assert "event (locked)" in r.stdout and "skipped" in r.stderr and "0004F.MP4" in r.stderr
+    batch = json.loads((d / "batch.json").read_text())
+    (trip,) = [x for x in batch["drives"] if x["kind"] == "drive"]
+    trip["skipped"] = batch["skipped"]
     for name in ("a", "b"):
         assert run_cli("dashcam", "extract", root, name, "-o", d / f"{name}-ref.mkv").returncode == 0
-    return {"root": root, "dir": d, "drives": drives, "files": files, "trip": json.loads((d / "trip.json").read_text())}
+    r = run_cli("dashcam", "ingest", root, loops, "--gps", d / "day3.gpx")  # the same card again
+    assert r.returncode == 0 and "nothing new" in r.stdout and "0004F.MP4" in r.stderr, r.stdout + r.stderr
+    return {"root": root, "dir": d, "drives": drives, "files": files, "trip": trip}
 
 
 def test_three_loop_files_make_one_trip(fleet):
@@ -124,6 +130,21 @@ def test_three_loop_files_make_one_trip(fleet):
     for k in (len(src) // 3 - 1, len(src) // 3, 2 * len(src) // 3):
         err = [np.mean((got[k] - src[j]) ** 2) for j in (k - 1, k, k + 1)]
         assert int(np.argmin(err)) == 1
+
+
+def test_a_log_beside_the_first_loop_file_covers_the_next_ones(fleet, tmp_path):
+    from egovid.dashcam.sources import ClockOptions, examine
+
+    files = fleet["files"]
+    for f in files:
+        (tmp_path / f.name).symlink_to(f)
+    log = tmp_path / (files[0].stem + ".gpx")  # a logger's one file per drive, named after its first file
+    shutil.copy(fleet["dir"] / "day3.gpx", log)
+    src = examine(tmp_path / files[2].name, None, ClockOptions())
+    assert src.gps_source == str(log) and src.clock.source == "creation_time"
+    shutil.copy(fleet["drives"]["a"][0], tmp_path / "other.mp4")  # recorded two days before the log
+    with pytest.raises(EgovidError, match="--gps"):  # so not placed in it
+        examine(tmp_path / "other.mp4", None, ClockOptions())
 
 
 def test_find_near_box_and_time(fleet):
@@ -169,7 +190,7 @@ def test_clip_around_a_moment(fleet):
     assert r.returncode == 0, r.stderr
     with av.open(str(out2)) as c:
         assert c.streams.video[0].codec_context.name == "h264" and c.streams.video[0].codec_context.pix_fmt == "yuv420p"
-    assert_one_error(run_cli("dashcam", "clip", root, "--at", "2020-01-01T00:00Z", "-o", d / "x.mp4"), "not recorded")
+    assert_one_error(run_cli("dashcam", "clip", root, "--at", "2020-01-01T00:00Z", "-o", d / "x.mp4"), "recorded at")
 
 
 def _catalogue_state(root: Path) -> dict:
@@ -201,8 +222,8 @@ def test_lock_and_forget_a_root_with_dependents(fleet, tmp_path):
     r = run_cli("dashcam", "forget", root, "--older-than", "0d", "--dry-run")
     assert "kept a: locked" in r.stderr and "kept b: locked" in r.stderr
     assert f"would forget 1 drive(s): {trip}" in r.stdout
-    r = run_cli("dashcam", "forget", root, "--keep-bytes", "1K", "--dry-run")
-    assert f"would forget 1 drive(s): {trip}" in r.stdout
+    r = run_cli("dashcam", "forget", root, "--keep-bytes", "1K", "--dry-run", "--json", "-")
+    assert json.loads(r.stdout)["forgotten"] == [trip] and f"would forget 1 drive(s): {trip}" in r.stderr
     assert run_cli("dashcam", "unlock", root, "a", "b").returncode == 0
     r = run_cli("dashcam", "forget", root, "a", "--json", tmp_path / "forget.json")
     assert r.returncode == 0, r.stderr
@@ -213,6 +234,11 @@ def test_lock_and_forget_a_root_with_dependents(fleet, tmp_path):
     assert 0 < rep["frames_kept"]["a"] < 0.75 * before_frames_a and rep["bytes_freed"] > 0
     r = run_cli("dashcam", "list", root)
     assert " a " not in r.stdout and " b " in r.stdout
+    db = sqlite3.connect(str(root / "catalogue.sqlite"))
+    (hidden,) = db.execute("SELECT name FROM drives WHERE name LIKE 'a~%'").fetchone()
+    db.close()
+    for key in ("a", hidden):  # the hidden reference is no drive of the user's any more
+        assert_one_error(run_cli("dashcam", "extract", root, key, "-o", tmp_path / "a.mkv"), f"no drive {key!r}")
     for name in ("b", trip):
         out = tmp_path / f"{name}-after.mkv"
         assert run_cli("dashcam", "extract", root, name, "-o", out).returncode == 0
@@ -229,23 +255,40 @@ def test_kill_during_forget_leaves_archive_consistent(fleet, tmp_path):
     root = tmp_path / "archive"
     shutil.copytree(fleet["root"], root)
     before = _catalogue_state(root)
+    # Hold the forget inside its transaction, deterministically: one bitstream of b (coded against
+    # a, so verified before the commit) becomes a named pipe, and reading it blocks until we write.
+    db = sqlite3.connect(str(root / "catalogue.sqlite"))
+    sha = db.execute("SELECT s.blob FROM segments s JOIN drives d ON d.id = s.drive_id WHERE d.name = 'b' "
+                     "ORDER BY s.frame_start DESC").fetchone()[0]  # fmt: skip
+    db.close()
+    (blob,) = (root / "blobs").glob(f"*/{sha}")
+    data = blob.read_bytes()
+    blob.unlink()
+    os.mkfifo(blob)
     proc = subprocess.Popen([sys.executable, "-m", "egovid", "dashcam", "forget", str(root), "a"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # fmt: skip
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
     reader.start()
     started = lambda: any("verifying" in ln for ln in lines) or proc.poll() is not None  # noqa: E731
-    _wait_for(started, "forget to start verifying", 300)
-    assert proc.poll() is None, f"forget ended before it could be killed: {''.join(lines)}"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    try:
+        _wait_for(started, "forget to start verifying", 300)
+        assert proc.poll() is None, f"forget ended before it could be killed: {''.join(lines)}"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        blob.unlink()
+        blob.write_bytes(data)
     assert _catalogue_state(root) == before  # killed inside its transaction: nothing changed
     db = sqlite3.connect(str(root / "catalogue.sqlite"))
     assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     db.close()
     # What it wrote before its commit (the trimmed part of a) is unreferenced: gc takes it, and
     # every drive still extracts as archived.
-    assert run_cli("dashcam", "gc", root).returncode == 0
+    r = run_cli("dashcam", "gc", root)
+    assert r.returncode == 0 and "deleted 0 " not in r.stdout, r.stdout + r.stderr
     for name in ("a", "b"):
         out = tmp_path / f"{name}.mkv"
         assert run_cli("dashcam", "extract", root, name, "-o", out).returncode == 0

@@ -38,6 +38,7 @@ def _track(t0: float, seconds: float, hz: float = 1.0, source: str = "log.gpx") 
 def test_file_name_and_creation_time_parsing():
     assert name_time("2024_0131_235959_001F.MP4") == utc(2024, 1, 31, 23, 59, 59)  # Novatek / Viofo
     assert name_time("20240131_235959_NF.mp4") == utc(2024, 1, 31, 23, 59, 59)  # BlackVue
+    assert name_time("240915_143027_001_FH.MP4") == utc(2024, 9, 15, 14, 30, 27)  # Nextbase
     assert name_time("2024-01-31_23-59-59-front.mp4") == utc(2024, 1, 31, 23, 59, 59)  # Tesla
     assert name_time("REC_2024_01_31_23_59_59_F.MP4") == utc(2024, 1, 31, 23, 59, 59)  # Thinkware
     assert name_time("GOPR0042.MP4") is None and name_time("clip_20241399_999999.mp4") is None

@@ -53,6 +53,15 @@ def test_karma_clip_ingests_on_its_own_gps_and_comes_back_as_the_camera_wrote_it
     if exiftool:
         text = subprocess.run([exiftool, "-ee", "-n", "-GPSLatitude", str(out)], capture_output=True, text=True).stdout
         assert text.count("GPS Latitude") == 47
+    # A stretch into Matroska (FFV1): full range, the archived frames, the Opus audio; the GPMF
+    # track, which Matroska cannot hold, left out (not a failed header).
+    mkv = tmp_path / "karma.mkv"
+    r = run_cli("dashcam", "extract", root, rep["name"], "-o", mkv, "--start", "2", "--duration", "3")
+    assert r.returncode == 0, r.stderr
+    with av.open(str(mkv)) as c:
+        assert c.streams.video[0].codec_context.color_range == 2 and len(c.streams.data) == 0
+        assert c.streams.audio[0].codec_context.name == "opus"
+    assert [_sha(f.image) for f in iter_frames(mkv, i420=True)] == archived[60:150]
     # An incident clip at a GPS time: H.264 + AAC + GPMF, and its GPX.
     moment = (start + dt.timedelta(seconds=6)).isoformat()
     clip = tmp_path / "incident.mp4"

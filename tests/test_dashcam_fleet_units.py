@@ -32,6 +32,13 @@ def test_kinds_and_cameras_from_dashcam_names():
     assert file_kind("TeslaCam/SentryClips/2024-01-31_23-59-59/2024-01-31_23-59-59-front.mp4") == "parking"
     assert file_kind("EVT_REC/EVT_2024_01_31_23_59_59_F.MP4") == "event"  # Thinkware
     assert file_kind("monday.mp4") == "drive"
+    assert file_kind("2024_0131_235959_0001EF.MP4") == "event"  # Viofo/Novatek suffix letters
+    assert file_kind("20230405104015_000076PF.MP4") == "parking"
+    assert file_kind("EV20240131-235959-000123F.MP4") == "event"  # 70mai
+    assert file_kind("PA20240131-235959-000123R.MP4") == "parking"
+    assert file_kind("NO20240131-235959-000123F.MP4") == "drive"
+    assert file_channel("2024_0131_235959_0001ER.MP4") == "rear"
+    assert file_channel("240915_143027_001_RH.MP4") == "rear" and file_channel("240915_143027_001_FH.MP4") == "front"
     assert [file_channel(n) for n in ("2024_0131_235959_0001R.MP4", "20240131_235959_NF.mp4",
                                       "2024-01-31_23-59-59-left_repeater.mp4", "monday.mp4")] == [
         "rear", "front", "left_repeater", "front"]  # fmt: skip

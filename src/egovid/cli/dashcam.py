@@ -21,6 +21,20 @@ def _open(archive: Path):
     return open_archive(archive)
 
 
+def _user_drive(ar, key: str):
+    """A drive by name or id, as the user sees the archive: not one a forget hid (kept only for
+    the frames other drives are coded against)."""
+    from egovid.dashcam.fleetstore import hidden_drive_ids
+    from egovid.errors import EgovidError
+
+    d = ar.catalogue.drive(key)
+    hidden = hidden_drive_ids(ar.catalogue)
+    if d is None or d.id in hidden:
+        names = ", ".join(x.name for x in ar.catalogue.drives() if x.id not in hidden) or "none"
+        raise EgovidError(f"no drive {key!r} in {ar.root}", f"drives in the archive: {names}")
+    return d
+
+
 @app.command("init")
 def init(
     archive: Path = typer.Argument(..., help="Folder to create the archive in (new or empty)."),
@@ -185,11 +199,19 @@ def ingest(
         prepared = prepare(ar, plan, name=name, lock_events=lock_events)
     for path, why in plan.skipped:
         err_console.print(f"skipped {path}: {why}")
+    skipped = [{"file": str(f), "reason": why} for f, why in plan.skipped]
     if not prepared:
+        if any(why.startswith("already in the archive") for _f, why in plan.skipped):
+            # The same card again (a sync job): nothing new is not a failure (the rest is listed above).
+            if json_out is not None:
+                from egovid.io.files import atomic_write_text
+
+                atomic_write_text(json_out, json.dumps({"drives": [], "failed": [], "skipped": skipped}, indent=1))
+            console.print("nothing new: the drives of these videos are already in the archive")
+            return
         raise EgovidError("nothing to ingest: every video was skipped", "see the reasons above")
     fleet = {p.name: p for p in prepared}
     drives = [drive_input(p) for p in prepared]
-    skipped = [{"file": str(f), "reason": why} for f, why in plan.skipped]
     if len(drives) == 1 and config.scheduler is None:
         with staged_progress() as cb:
             rep = ingest_drive(ar, drives[0], opts, progress=cb)
@@ -278,7 +300,7 @@ def show(
 ) -> None:
     """Show how a drive is stored: its path sequences and segments."""
     ar = _open(archive)
-    d = ar.drive_or_fail(drive)
+    d = _user_drive(ar, drive)
     console.print(f"[bold]{d.name}[/] (id {d.id}): {d.frames} frames, {d.width}x{d.height} @ {d.fps:g} fps")
     console.print(f"source {d.source}\nGPS    {d.gps_source}")
     for s in ar.catalogue.sequences(drive_id=d.id):
@@ -315,7 +337,7 @@ def extract(
 
     ar = _open(archive)
     check_output(out, exts=".mkv .mp4")
-    d = ar.drive_or_fail(drive)
+    d = _user_drive(ar, drive)
     f0 = round((start or 0.0) * d.fps)
     f1 = d.frames if duration is None else min(d.frames, f0 + max(1, round(duration * d.fps)))
     if f0 >= d.frames:
@@ -604,17 +626,18 @@ def forget_cmd(
     for name in skipped:
         err_console.print(f"kept {name}: locked")
     if not chosen:
-        console.print("nothing to forget")
+        if json_out is not None:
+            _write_json(json_out, {"forgotten": [], "skipped_locked": skipped, "bytes_freed": 0})
+        (err_console if json_out == "-" else console).print("nothing to forget")
         return
     rep = forget_drives(ar, fleet, chosen, verify=verify, dry_run=dry_run, say=err_console.print)
     rep.skipped_locked = skipped
     verb = "would forget" if dry_run else "forgot"
-    console.print(f"{verb} {len(rep.forgotten)} drive(s): {', '.join(rep.forgotten)}")
+    out = err_console if json_out == "-" else console  # stdout holds only the JSON then
+    out.print(f"{verb} {len(rep.forgotten)} drive(s): {', '.join(rep.forgotten)}")
     for name, needers in rep.kept_as_reference.items():
-        console.print(f"  {name}: kept only the frames {', '.join(needers)} are coded against (hidden)")
-    console.print(
-        f"{'would free' if dry_run else 'freed'} {rep.bytes_freed / 1024**2:.2f} MiB ({rep.bytes_freed} bytes)"
-    )
+        out.print(f"  {name}: kept only the frames {', '.join(needers)} are coded against (hidden)")
+    out.print(f"{'would free' if dry_run else 'freed'} {rep.bytes_freed / 1024**2:.2f} MiB ({rep.bytes_freed} bytes)")
     if json_out is not None:
         _write_json(json_out, rep.to_dict())
 

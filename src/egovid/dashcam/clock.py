@@ -40,6 +40,8 @@ MIN_COVER = 0.8
 _NAME_TIME = re.compile(
     r"(?<!\d)(20\d\d)[_\-]?([01]\d)[_\-]?([0-3]\d)[_\-T ]?([0-2]\d)[_\-:]?([0-5]\d)[_\-:]?([0-5]\d)(?!\d)"
 )
+# Nextbase: 240915_143027_001_FH.MP4 (two-digit year, at the start of the name).
+_NAME_TIME_YY = re.compile(r"^(\d\d)([01]\d)([0-3]\d)_([0-2]\d)([0-5]\d)([0-5]\d)_")
 
 
 @dataclass(frozen=True)
@@ -86,8 +88,12 @@ def name_time(path: str) -> float | None:
     """The recording time in a dashcam file name, read as if it were UTC (seconds; the caller
     applies ``--tz-offset``), None if the name has none. The last match wins (folders may be dated)."""
     found = None
-    for m in _NAME_TIME.finditer(Path(path).name):
+    name = Path(path).name
+    yy = _NAME_TIME_YY.match(name)
+    matches = [yy] if yy and not _NAME_TIME.search(name) else list(_NAME_TIME.finditer(name))
+    for m in matches:
         y, mo, d, h, mi, s = (int(g) for g in m.groups())
+        y += 2000 if y < 100 else 0
         try:
             found = dt.datetime(y, mo, d, h, mi, s, tzinfo=dt.UTC).timestamp()
         except ValueError:

@@ -3,9 +3,11 @@ drives (trips) they make.
 
 For every file :func:`examine` finds:
 
-* its GPS: ``--gps`` (one log may cover many files), else the file beside it with the same name
-  (.gpx/.nmea/.csv), else the video's own (:mod:`egovid.dashcam.gps_embedded`); the video's own GPS
-  is read even when a log is given, since its GPS time is the best clock there is;
+* its GPS: ``--gps`` (one log may cover many files; a file of a batch it does not cover keeps its
+  own, below), else the file beside it with the same name
+  (.gpx/.nmea/.csv), else the video's own (:mod:`egovid.dashcam.gps_embedded`), else another log in
+  its folder that its camera clock puts it in (one log per drive, beside the drive's first file);
+  the video's own GPS is read even when a log is given, since its GPS time is the best clock there is;
 * its clock (:mod:`egovid.dashcam.clock`): GPS time, else the camera clock checked against the log;
 * its kind (drive, event, parking) and camera (front, rear, …) from its folder and name.
 
@@ -16,6 +18,7 @@ cannot be used are listed with the reason. Nothing is decoded here but the first
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -78,9 +81,45 @@ def _beside(video: Path) -> Path | None:
         return None
 
 
-def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions) -> FileSource:
+@functools.lru_cache(maxsize=64)
+def _read_log(path: Path, mtime: float) -> GpsTrack | None:
+    try:
+        return read_track(path)
+    except EgovidError:
+        return None
+
+
+def _folder_log(path: Path, info: VideoInfo, times: np.ndarray, clock: ClockOptions) -> tuple[GpsTrack, str] | None:
+    """A GPS log in the video's folder that covers it, for a video with no GPS of its own: loggers
+    and some cameras write one log per drive, named after its first file, so the later loop files of
+    the drive have none beside them. A log counts only where the video's own clock (creation_time,
+    file name, ``--tz-offset``) puts the video inside it (:func:`resolve_clock`'s coverage check)."""
+    from egovid.dashcam.ingest.stages import GPS_EXTENSIONS
+
+    exts = {e.lower() for e in GPS_EXTENSIONS}
+    created, named = parse_creation_time(info.creation_time), name_time(path.name)
+    if created is None and named is None:
+        return None  # nothing would place the video inside another file's log
+    cands = sorted(f for f in path.parent.iterdir() if f.is_file() and f.suffix.lower() in exts)
+    duration = float(times[-1]) + 1.0 / max(info.fps, 1e-6)
+    for f in cands:
+        track = _read_log(f, f.stat().st_mtime)
+        if track is None:
+            continue
+        try:
+            resolve_clock(duration, video_name=path.name, track=track, creation_time=created, file_time=named,
+                          tz_offset_h=clock.tz_offset_h, gps_offset=clock.gps_offset)  # fmt: skip
+        except EgovidError:
+            continue
+        return track, str(f)
+    return None
+
+
+def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions, *, batch: bool = False) -> FileSource:
     """Look at one file (see the module docstring); raises :class:`EgovidError` naming what is
-    missing (a video that does not decode, no GPS anywhere: ``--gps``, a clock no GPS confirms)."""
+    missing (a video that does not decode, no GPS anywhere: ``--gps``, a clock no GPS confirms).
+    ``batch``: the file is one of many sharing ``log``; where the log does not cover it, its own GPS
+    (beside it, or in the video) is used instead of giving up."""
     path = Path(video)
     info = probe(path)
     times = frame_times(path)
@@ -99,23 +138,43 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions)
     if track is None and embedded is not None:
         track, source = embedded.track, f"embedded: {embedded.reader}"
     if track is None:
+        folder_log = _folder_log(path, info, times, clock)
+        if folder_log is not None:
+            track, source = folder_log
+    if track is None:
         raise EgovidError(
             f"no GPS for {path.name}: none embedded in the video (ExifTool, NMEA text track) and no "
             f"{path.stem}.gpx, .nmea or .csv beside it",
             "give the drive's GPS log with --gps FILE",
         )
     duration = float(times[-1]) + 1.0 / max(info.fps, 1e-6)
-    vc = resolve_clock(
-        duration,
-        video_name=path.name,
-        start=clock.start,
-        embedded=embedded,
-        track=track,
-        creation_time=parse_creation_time(info.creation_time),
-        file_time=name_time(path.name),
-        tz_offset_h=clock.tz_offset_h,
-        gps_offset=clock.gps_offset,
-    )
+
+    def place(log_track: GpsTrack) -> VideoClock:
+        return resolve_clock(
+            duration,
+            video_name=path.name,
+            start=clock.start,
+            embedded=embedded,
+            track=log_track,
+            creation_time=parse_creation_time(info.creation_time),
+            file_time=name_time(path.name),
+            tz_offset_h=clock.tz_offset_h,
+            gps_offset=clock.gps_offset,
+        )
+
+    try:
+        vc = place(track)
+    except EgovidError:
+        if not batch or source != "--gps":
+            raise
+        side = _beside(path)
+        own = (read_track(side), str(side)) if side is not None else None
+        if own is None and embedded is not None:
+            own = (embedded.track, f"embedded: {embedded.reader}")
+        if own is None:
+            raise
+        track, source = own
+        vc = place(track)
     return FileSource(path, info, times, track, source, vc, file_kind(path), file_channel(path), embedded)
 
 
@@ -161,7 +220,7 @@ def plan_ingest(
     skipped: list[tuple[Path, str]] = []
     for k, f in enumerate(files):
         try:
-            sources[f] = examine(f, log, clock)
+            sources[f] = examine(f, log, clock, batch=not single)
         except EgovidError as e:
             if single:
                 raise
@@ -171,8 +230,8 @@ def plan_ingest(
     if not sources:
         first = skipped[0][1] if skipped else "nothing to ingest"
         raise EgovidError(
-            f"none of the {len(files)} videos can be ingested (first: {first})",
-            "see the reason above; give GPS logs with --gps FILE where the videos have none",
+            f"none of the {len(files)} videos can be ingested (the first: {first})",
+            "ingest the files one by one to see each reason; give GPS logs with --gps FILE where the videos have none",
         )
     trips = plan_trips([s.file_info() for s in sources.values()], skipped=skipped, max_gap=max_gap, join=join)
     return IngestPlan(trips, sources)

@@ -28,6 +28,8 @@ import av
 import numpy as np
 
 OPUS_RATE = 48000
+#: Output formats (FFmpeg muxer names) that hold raw telemetry tracks (GPMF, CAMM) as data streams.
+DATA_FORMATS = ("mp4", "mov")
 
 
 @dataclass
@@ -211,6 +213,8 @@ class StreamCopier:
                     )
                     dst.bit_rate = audio_kbps * 1000
                     self.map[s.index] = dst
+            elif out.format.name.split(",")[0] not in DATA_FORMATS:
+                self.left_out += 1  # accepted here, but the header could not be written
             else:
                 try:
                     self.map[s.index] = out.add_stream_from_template(s)

@@ -49,6 +49,7 @@ _EVENT_DIRS = {
     "manual_rec",
     "incident",
     "sos",
+    "crash",
 }
 _PARKING_DIRS = {
     "parking",
@@ -61,8 +62,11 @@ _PARKING_DIRS = {
     "timelapse",
 }
 # File names: BlackVue 20240131_235959_EF.mp4 (N normal, E event, P parking, M manual; F/R/I camera),
-# Thinkware EVT_/PARK_/MAN_ prefixes, Viofo/Novatek …_PF.MP4 / …EF.MP4 suffix letters.
+# Thinkware EVT_/PARK_/MAN_ prefixes, Viofo/Novatek …_0001PF.MP4 / …_0001EF.MP4 suffix letters,
+# 70mai NO/EV/PA prefixes (NO20240131-235959-000123F.MP4).
 _BLACKVUE = re.compile(r"_(?P<k>[NEPMIOABTXG])[FRIO]?(?:[SL])?$", re.IGNORECASE)
+_NOVATEK = re.compile(r"^\d{4}_?\d{4}_?\d{6}_\d+(?P<k>[EP])[FRI]$", re.IGNORECASE)
+_70MAI = re.compile(r"^(?P<k>NO|EV|PA)\d{8}-\d{6}", re.IGNORECASE)
 _EVENT_NAME = re.compile(r"^(evt|event|emer|man|manual|sos|lock)[_\-]|[_\-](evt|event|emer|lock(ed)?)([_\-.]|$)", re.I)
 _PARK_NAME = re.compile(r"^(park|parking|pk)[_\-]|[_\-](park|parking)([_\-.]|$)", re.IGNORECASE)
 
@@ -83,13 +87,17 @@ def file_kind(path: str | os.PathLike) -> str:
     m = _BLACKVUE.search(stem)
     if m and re.match(r"^\d{8}_\d{6}_", stem):
         return {"E": "event", "M": "event", "P": "parking", "I": "event"}.get(m.group("k").upper(), "drive")
+    m = _NOVATEK.match(stem) or _70MAI.match(stem)
+    if m:
+        return {"E": "event", "EV": "event", "P": "parking", "PA": "parking"}.get(m.group("k").upper(), "drive")
     return "drive"
 
 
 _CHANNEL = (
     re.compile(r"-(front|back|left_repeater|right_repeater|left_pillar|right_pillar)$", re.IGNORECASE),  # Tesla
     re.compile(r"^\d{8}_\d{6}_[NEPMIOABTXG]([FRI])", re.IGNORECASE),  # BlackVue
-    re.compile(r"(?:\d|_)([FRI])$", re.IGNORECASE),  # Viofo/Novatek …0001F, Thinkware …_F
+    re.compile(r"^\d{6}_\d{6}_\d+_([FR])[HL]$", re.IGNORECASE),  # Nextbase 240915_143027_001_RH (camera, quality)
+    re.compile(r"(?:\d|_)[EP]?([FRI])$", re.IGNORECASE),  # Viofo/Novatek …0001F / …0001EF, Thinkware …_F
 )
 _CHANNEL_NAMES = {"f": "front", "r": "rear", "i": "interior", "back": "rear"}
 

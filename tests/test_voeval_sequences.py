@@ -207,6 +207,7 @@ def test_tum_euroc_kitti_and_frames_read_back_exactly_and_truth_scores_zero(tmp_
     assert 0.2 < dark.mean() / orig.mean() < 0.5
     report = (out / "report.md").read_text()
     assert "| 07 | blur |" in report and "rotation_07.png" in report
+    assert "| 07 | as recorded | **truth**" in report and "| 07 | compression (crf36) | **truth**" in report
 
 
 def test_match_reference_interpolates_and_refuses_gaps():

@@ -13,9 +13,16 @@ Modes (``--mode``):
 * ``both`` — local, then the cluster on a copy of the prepared scenes (cells only), to compare
   per-cell times of the same cells.
 
-``--vos``, ``--levels`` and ``--seeds`` run a part of the grid (e.g. to check before a full run).
-Prints the total time, seconds per cell by odometer (mean, max) and by stage, the cell statuses,
-and writes the report (bench-output/voeval[-cluster]/report.html, report.md, matrices.json).
+``--vos``, ``--scenes``, ``--levels`` and ``--seeds`` run a part of the grid (a sample of its
+cells). Prints the total time, seconds per cell by odometer (mean, max; whole cells: odometer plus
+pose error, OITF and RITF) and by stage, the cell statuses, and an extrapolation of the *full*
+default grid from the sample (``full_grid_estimate``): every (odometer, scene family, level) cell
+not measured takes the mean of that odometer's measured cells of the same scene family (orbit or
+pano), and the renders, ladder encodes and cells are packed on the two workers, plus the longest
+cell once for the tail. Writes the report (bench-output/voeval[-cluster]/report.html, report.md,
+matrices.json).
+
+Measured on this 2-core machine, shared: run the sample with /work/coord/bin/timed (both cores).
 """
 
 from __future__ import annotations
@@ -99,13 +106,60 @@ def local_cluster(base: Path):
                 os.killpg(p.pid, signal.SIGKILL)
 
 
-def summary(out: Path, seconds: float, r: dict, mode: str) -> dict:
+WORKERS = 2
+
+
+def _family(scene: str) -> str:
+    return scene.split("-")[0]
+
+
+def extrapolate(run, r: dict, cfg: GridConfig) -> dict:
+    """Wall minutes of the full default grid (every available odometer x 6 scenes x 7 levels, one
+    seed, 2 workers) from the cells and stage times of a sampled run (see the module doc)."""
+    full = GridConfig()
+    by = defaultdict(list)
+    for (vo, scene, lv, _s), c in run.cells.items():
+        t = c.get("cell_seconds", c["seconds"])
+        by[(vo, _family(scene), lv)].append(t)
+        by[(vo, _family(scene))].append(t)
+    missing = [v for v in full.vos if not any(k[0] == v for k in by)]
+    cell_s, longest = 0.0, 0.0
+    for vo in full.vos:
+        for scene in full.scenes:
+            for lv in full.levels:
+                ts = by.get((vo, _family(scene), lv)) or by.get((vo, _family(scene))) or []
+                if ts:
+                    cell_s += float(np.mean(ts))
+                    longest = max(longest, float(np.max(ts)))
+    n_scenes = len(cfg.scenes) * len(cfg.seeds)
+    n_enc = n_scenes * sum(1 for lv in cfg.levels if lv != "lossless")
+    stages = r["stages"]
+    render_s = stages.get("scenes", 0.0) * min(WORKERS, n_scenes) / max(n_scenes, 1)
+    encode_s = stages.get("ladder", 0.0) * min(WORKERS, n_enc) / max(n_enc, 1) if n_enc else 0.0
+    n_full_enc = len(full.scenes) * (len(full.levels) - 1)
+    total = (len(full.scenes) * render_s + n_full_enc * encode_s + cell_s) / WORKERS + longest
+    return {
+        "grid": f"{len(full.vos)} VOs x {len(full.scenes)} scenes x {len(full.levels)} levels, "
+        f"{full.frames} frames {full.width}x{full.height}, 1 seed",
+        "cells": len(full.vos) * len(full.scenes) * len(full.levels),
+        "sampled_cells": len(run.cells),
+        "render_seconds_per_scene": render_s,
+        "encode_seconds_per_video": encode_s,
+        "cell_cpu_minutes": cell_s / 60,
+        "wall_minutes": total / 60,
+        "meets_30_min": total <= 30 * 60 and not missing,
+        "vos_not_sampled": missing,
+    }
+
+
+def summary(out: Path, seconds: float, r: dict, mode: str, cfg: GridConfig) -> dict:
     run = load_results(out)
     per_vo, status = defaultdict(list), defaultdict(lambda: defaultdict(int))
-    per_scene = defaultdict(list)
+    per_scene, per_cell = defaultdict(list), defaultdict(list)
     for (vo, scene, _lv, _s), c in run.cells.items():
         per_vo[vo].append(c["seconds"])
-        per_scene[scene].append(c["seconds"])
+        per_cell[vo].append(c.get("cell_seconds", c["seconds"]))
+        per_scene[scene].append(c.get("cell_seconds", c["seconds"]))
         status[vo][c["status"]] += 1
     return {
         "mode": mode,
@@ -119,8 +173,12 @@ def summary(out: Path, seconds: float, r: dict, mode: str) -> dict:
         "vo_seconds_per_cell": {
             v: {"mean": float(np.mean(t)), "max": float(np.max(t)), "n": len(t)} for v, t in per_vo.items()
         },
-        "vo_seconds_per_scene": {s: float(np.mean(t)) for s, t in per_scene.items()},
+        "cell_seconds_per_vo": {
+            v: {"mean": float(np.mean(t)), "max": float(np.max(t)), "n": len(t)} for v, t in per_cell.items()
+        },
+        "cell_seconds_per_scene": {s: float(np.mean(t)) for s, t in per_scene.items()},
         "status": {v: dict(s) for v, s in status.items()},
+        "full_grid_estimate": extrapolate(run, r, cfg),
         "report": str(out / "report.html"),
     }
 
@@ -129,6 +187,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--mode", choices=("local", "cluster", "both"), default="local")
     ap.add_argument("--vos", help="odometers (default: every available one)")
+    ap.add_argument("--scenes", help="synthetic scenes (default: all six)")
     ap.add_argument("--levels", default=",".join(LEVELS))
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--quick", action="store_true", help="the --quick grid (48 frames, 320x240)")
@@ -137,6 +196,8 @@ def main() -> None:
     cfg = GridConfig(levels=a.levels.split(","), seeds=[int(s) for s in a.seeds.split(",")])
     if a.vos:
         cfg.vos = a.vos.split(",")
+    if a.scenes:
+        cfg.scenes = a.scenes.split(",")
     if a.quick:
         cfg.frames, cfg.width, cfg.height = 48, 320, 240
     out = cache_dir("voeval")
@@ -148,7 +209,7 @@ def main() -> None:
         r = run_grid(out, cfg, EngineConfig(workers=2))
         total = time.perf_counter() - t
         write_report(out)
-        report("voeval_grid", summary(out, total, r, "local: LocalCluster, 2 worker processes"))
+        report("voeval_grid", summary(out, total, r, "local: LocalCluster, 2 worker processes", cfg))
     if a.mode in ("cluster", "both"):
         cl = cache_dir("voeval-cluster")
         if not a.resume:
@@ -162,7 +223,7 @@ def main() -> None:
             r = run_grid(cl, cfg, EngineConfig(scheduler=address))
             total = time.perf_counter() - t
         write_report(cl)
-        report("voeval_grid", summary(cl, total, r, f"cluster: dask scheduler + 2 workers at {address}"))
+        report("voeval_grid", summary(cl, total, r, f"cluster: dask scheduler + 2 workers at {address}", cfg))
 
 
 if __name__ == "__main__":

@@ -254,12 +254,14 @@ def test_bad_vo_arguments(tmp_path):
     assert r.returncode == 2 and "unknown visual odometer" in r.stderr
     r = run_cli("voeval", "run", "--out", tmp_path / "x", "--vo", "egovid", "--vo-cmd", "tool")
     assert r.returncode == 2 and "{video}" in r.stderr
+    assert not (tmp_path / "x").exists()  # refused before the run folder is made
     r = run_cli("voeval", "report", tmp_path / "nothing")
     assert r.returncode == 2 and "no results" in r.stderr
     # Without --vo every available odometer is asked for (it crashed before): here the run stops at
     # the bad sequence, after the odometer list was built.
     r = run_cli("voeval", "run", "--out", tmp_path / "y", "--sequence", "kitti:/nowhere")
     assert_one_error(r, "does not exist")
+    assert not (tmp_path / "y").exists()
 
 
 def test_default_odometers_are_every_available_one():

@@ -21,7 +21,7 @@ from egovid.io.trajectory import Trajectory, read_tum, write_tum
 from egovid.io.video import iter_frames
 from egovid.voeval.sequences import longest_run, match_reference, parse_specs
 
-from conftest import assert_one_error, run_cli
+from conftest import assert_one_error, real_clip, run_cli
 
 N, W, H, FPS = 14, 160, 120, 20.0
 T0 = 1305031102.175  # a TUM-like epoch: times are absolute seconds in the datasets
@@ -207,6 +207,7 @@ def test_tum_euroc_kitti_and_frames_read_back_exactly_and_truth_scores_zero(tmp_
     assert 0.2 < dark.mean() / orig.mean() < 0.5
     report = (out / "report.md").read_text()
     assert "| 07 | blur |" in report and "rotation_07.png" in report
+    assert "| 07 | as recorded | **truth**" in report and "| 07 | compression (crf36) | **truth**" in report
 
 
 def test_match_reference_interpolates_and_refuses_gaps():
@@ -226,7 +227,9 @@ def test_bad_sequences_are_one_clear_error(tmp_path):
     assert_one_error(run_cli(*base, "--sequence", f"tum:{tmp_path / 'missing'}"), "does not exist")
     assert_one_error(run_cli(*base, "--sequence", f"euroc:{tmp_path / 'empty'}"), "cam0/data.csv")
     assert_one_error(run_cli(*base, "--sequence", f"gyro:{tmp_path / 'empty'}"), "not a video file")
-    assert not (tmp_path / "r" / "results").exists()
+    no_gyro = real_clip("handheld-1080p-pan.mp4")  # a real phone clip without telemetry
+    assert_one_error(run_cli(*base, "--sequence", f"gyro:{no_gyro}"), "no embedded gyro")
+    assert not (tmp_path / "r").exists()  # every --sequence is checked before the run folder is made
     with pytest.raises(EgovidError, match="freiburg"):
         from egovid.voeval.datasets import read_tum
 

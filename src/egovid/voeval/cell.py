@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,6 +70,7 @@ def evaluate_cell(job: CellJob) -> dict:
     dst = cell_path(out, job.vo, job.scene, job.level, job.seed)
     if dst.exists():
         return json.loads(dst.read_text())
+    t_cell = time.perf_counter()
     truth = SceneTruth.load(scene_dir(out, job.seed, job.seeded), job.scene)
     vo = make_vo(job.vo, list(job.commands))
     threads = cv2.getNumThreads()
@@ -96,6 +98,7 @@ def evaluate_cell(job: CellJob) -> dict:
         "status": res.status,
         "message": res.message,
         "seconds": res.seconds,
+        "cell_seconds": time.perf_counter() - t_cell,
         "frames": n,
         "tracked": int(valid.sum()),
         "first_pose_frame": n if first is None else first,

@@ -101,11 +101,20 @@ def answer(
 
 
 def answers(run) -> list[list[Answer]]:
-    """One row per factor (synthetic, each real sequence, compression), one Answer per application."""
+    """One row per real sequence as recorded, per factor (synthetic, each real sequence's) and per
+    compression (each ideal scene and real sequence at the strongest level), one Answer per application."""
     rows: list[list[Answer]] = []
     if "lossless" not in run.levels:
         return rows
     info = run.scene_info
+    real = [s for s in run.scenes if info[s]["kind"] == "real"]
+    for s in real:  # the user's own footage as recorded: which VO does best on it at all
+        rows.append(
+            [
+                answer(run.cells, run.vos, run.seeds, s, "as recorded", s, "lossless", info[s]["motion"], m)
+                for m in METRICS
+            ]
+        )
     for f in run.factors:
         motion = info[f.hard]["motion"]
         rows.append(
@@ -113,7 +122,7 @@ def answers(run) -> list[list[Answer]]:
         )
     strongest = run.levels[-1]
     if strongest != "lossless":
-        ideals = list(dict.fromkeys(f.ideal for f in run.factors))
+        ideals = list(dict.fromkeys([*(f.ideal for f in run.factors), *real]))
         for s in ideals:
             src = "synthetic" if info[s]["kind"] == "synthetic" else s
             label = f"compression ({s}, {strongest})" if src == "synthetic" else f"compression ({strongest})"

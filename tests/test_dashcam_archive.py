@@ -203,7 +203,9 @@ def test_bad_input_changes_nothing(archive, drives, tmp_path):
 def _kill_mid_ingest(root, video, gps) -> None:
     """Start an ingest in another process and kill -9 it once it has written a new bitstream (its
     first piece; the drive has a second piece still to encode, and nothing is committed before the
-    last). Fails loudly if that never happens."""
+    last). The slowest preset keeps that second piece's encode long (seconds, against a 0.2 s
+    poll), so the kill lands mid-encode also on a loaded machine. Fails loudly if the bitstream
+    never comes or the ingest ends first."""
     blobs_before = {p.name for p in (root / "blobs").rglob("*") if p.is_file()}
     proc = subprocess.Popen(
         [
@@ -212,7 +214,7 @@ def _kill_mid_ingest(root, video, gps) -> None:
             "egovid",
             "dashcam",
             "ingest",
-            *map(str, (root, video, "--gps", gps, "--name", "killed")),
+            *map(str, (root, video, "--gps", gps, "--name", "killed", "--preset", "archive")),
         ],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,

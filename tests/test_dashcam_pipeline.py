@@ -1,6 +1,8 @@
 """The ingest pipeline's stages on their own: streamed alignment against the whole-sequence
 aligners, the matcher against OpenCV's, one decode pass with bounded memory."""
 
+import itertools
+
 import cv2
 import numpy as np
 import pytest
@@ -165,3 +167,33 @@ def test_an_ingest_decodes_its_video_once_and_holds_few_frames(tmp_path, monkeyp
     assert [p.mode for p in rep.pieces] == ["joint"] and rep.frames > 300
     assert counts == {str(tmp_path / "new.mp4"): rep.frames + 1}
     assert 0 < max(p.peak_frames_held for p in rep.pieces) < 80
+
+
+def test_read_ahead_keeps_order_hands_errors_on_and_stops_when_closed():
+    import threading
+
+    from egovid.dashcam.extract import read_ahead
+
+    assert list(read_ahead(iter(range(50)), 3)) == list(range(50))
+
+    def failing():
+        yield 1
+        raise ValueError("boom")
+
+    it = read_ahead(failing(), 2)
+    assert next(it) == 1
+    with pytest.raises(ValueError, match="boom"):
+        next(it)
+
+    closed = threading.Event()
+
+    def endless():
+        try:
+            yield from itertools.count()
+        finally:
+            closed.set()
+
+    it = read_ahead(endless(), 2)
+    assert next(it) == 0
+    it.close()
+    assert closed.is_set()  # the thread stopped and closed the source before close() returned

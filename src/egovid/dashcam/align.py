@@ -107,7 +107,7 @@ class MatchCache:
     """:func:`cross_check_matches` remembering its last ``size`` results, for an aligner whose
     search and refinement look at the same pairs of features (one thread)."""
 
-    def __init__(self, size: int = 64) -> None:
+    def __init__(self, size: int = 256) -> None:
         self.size = size
         self._memo: dict[tuple[int, int], tuple] = {}
 

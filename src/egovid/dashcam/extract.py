@@ -13,10 +13,12 @@ from __future__ import annotations
 import hashlib
 import itertools
 import os
+import queue
+import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 import numpy as np
 
@@ -95,11 +97,62 @@ def _ranged_packets(
         yield from codec.iter_packets(body, 0, runs[b - 1][1] - runs[a][0])
 
 
-class DriveFrames:
-    """Decoded frames of an archived drive, by index (forward streaming with a small cache)."""
+T = TypeVar("T")
 
-    def __init__(self, source: FrameSource, drive_id: int, cache: int = 48) -> None:
+
+def read_ahead(items: Iterator[T], depth: int) -> Iterator[T]:
+    """``items`` produced by a background thread up to ``depth`` ahead of the consumer: decoders
+    (FFmpeg, libvpx) and OpenCV release the GIL, so decoding overlaps the consumer's own work on
+    another core. An error raised by ``items`` is raised to the consumer when it reaches it;
+    closing the returned generator (or dropping it) stops the thread and closes ``items``."""
+    q: queue.Queue = queue.Queue(depth)
+    stop = threading.Event()
+    end = object()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def run() -> None:
+        try:
+            for item in items:
+                if not put((item, None)):
+                    return
+            put((end, None))
+        except BaseException as exc:  # handed to the consumer
+            put((end, exc))
+        finally:
+            close = getattr(items, "close", None)
+            if close is not None:
+                close()
+
+    worker = threading.Thread(target=run, name="egovid-read-ahead", daemon=True)
+    worker.start()
+    try:
+        while True:
+            item, exc = q.get()
+            if item is end:
+                if exc is not None:
+                    raise exc
+                return
+            yield item
+    finally:
+        stop.set()
+        worker.join()
+
+
+class DriveFrames:
+    """Decoded frames of an archived drive, by index (forward streaming with a small cache;
+    ``ahead`` > 0: decoded that many frames ahead in a background thread, :func:`read_ahead`)."""
+
+    def __init__(self, source: FrameSource, drive_id: int, cache: int = 48, ahead: int = 0) -> None:
         self.source = source
+        self.ahead = ahead
         self.segments = source.segments(drive_id)
         if not self.segments:
             raise EgovidError(f"drive {drive_id} has no frames in the archive", DAMAGED)
@@ -122,7 +175,10 @@ class DriveFrames:
             return self._cache[idx]
         seg = self._segment_of(idx)
         if self._seg is None or self._seg.id != seg.id or idx < self._pos:
+            self.close()
             self._gen = segment_frames(self.source, seg, idx - seg.frame_start)
+            if self.ahead:
+                self._gen = read_ahead(self._gen, self.ahead)
             self._seg, self._pos = seg, idx
         frame = None
         while self._pos <= idx:
@@ -132,6 +188,12 @@ class DriveFrames:
                 self._cache.popitem(last=False)
             self._pos += 1
         return frame
+
+    def close(self) -> None:
+        """Stop decoding (and the read-ahead thread, if any)."""
+        if self._gen is not None and hasattr(self._gen, "close"):
+            self._gen.close()
+        self._gen = None
 
 
 def baselines(source: FrameSource, seg: Segment, first: int = 0) -> Callable[[int], np.ndarray] | None:

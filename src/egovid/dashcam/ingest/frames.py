@@ -18,9 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from egovid.dashcam.align import MatchCache, OrbScorer, ScaleRefiner, small_gray
-from egovid.dashcam.extract import DriveFrames, FrameSource
+from egovid.dashcam.extract import DriveFrames, FrameSource, read_ahead
 from egovid.dashcam.trips import iter_trip_frames
 from egovid.motion.features import FrameFeatures
+
+READ_AHEAD = 4  # frames decoded ahead of the stages (new drive and baseline drive)
 
 
 @dataclass
@@ -37,7 +39,13 @@ def decode_once(
     video: str | os.PathLike | Sequence[str | os.PathLike], width: int, height: int, clock: dict | None = None
 ) -> Iterator[InputFrame]:
     """Every frame of ``video`` (or of several files back to back: a trip), decoded once, in
-    presentation order. ``clock['decode']`` (if given) accumulates the seconds spent here."""
+    presentation order, by a background thread a few frames ahead (:func:`extract.read_ahead`;
+    close the generator when done). ``clock['decode']`` (if given) accumulates the seconds spent
+    decoding."""
+    return read_ahead(_decode(video, width, height, clock), READ_AHEAD)
+
+
+def _decode(video, width: int, height: int, clock: dict | None) -> Iterator[InputFrame]:
     frames = iter_trip_frames([video] if isinstance(video, str | os.PathLike) else list(video), i420=True)
     while True:
         t0 = time.perf_counter()
@@ -67,7 +75,7 @@ class RefFrames:
         refine_radius: int = 3,
         refine_features: int = 1000,
     ) -> None:
-        self.drive = DriveFrames(source, drive_id, cache=2)
+        self.drive = DriveFrames(source, drive_id, cache=2, ahead=READ_AHEAD)
         self.f0, self.m, self.size = frame_start, m, size
         matches = MatchCache()
         self.scorer = OrbScorer(matcher=matches)
@@ -134,6 +142,10 @@ class RefFrames:
         ):
             for key in [k for k in cache if k < bound]:
                 del cache[key]
+
+    def close(self) -> None:
+        """Stop decoding the older drive."""
+        self.drive.close()
 
     @property
     def held(self) -> int:

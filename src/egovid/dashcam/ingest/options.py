@@ -13,12 +13,37 @@ BASELINE_ALIGN = ("none", "gain", "similarity")
 #: Named settings (``--preset``); explicit options override them. Measured in
 #: benchmarks/dashcam_ingest_speed.py (speed) and benchmarks/dashcam_bdrate.py (savings).
 PRESETS: dict[str, dict] = {
-    # libvpx's realtime deadline at its fastest useful speed, two threads sharing rows.
-    "realtime": {"realtime": True, "speed": 8, "threads": 2, "row_mt": True, "refine_radius": 2},
+    # libvpx's realtime deadline at its fastest speed, two threads sharing rows and two tile
+    # columns; one set of ORB key points per frame shared by the search and the refinement.
+    "realtime": {
+        "realtime": True,
+        "speed": 9,
+        "threads": 2,
+        "row_mt": True,
+        "tile_columns": 1,
+        "refine_radius": 2,
+        "refine_features": 0,
+    },
     # realtime deadline, a slower search in the encoder.
-    "balanced": {"realtime": True, "speed": 6, "threads": 2, "row_mt": True, "refine_radius": 3},
+    "balanced": {
+        "realtime": True,
+        "speed": 6,
+        "threads": 2,
+        "row_mt": True,
+        "tile_columns": 0,
+        "refine_radius": 3,
+        "refine_features": 1000,
+    },
     # libvpx's good-quality deadline, one thread: the smallest files, the thesis-matched figures.
-    "archive": {"realtime": False, "speed": 5, "threads": 1, "row_mt": False, "refine_radius": 3},
+    "archive": {
+        "realtime": False,
+        "speed": 5,
+        "threads": 1,
+        "row_mt": False,
+        "tile_columns": 0,
+        "refine_radius": 3,
+        "refine_features": 1000,
+    },
 }
 DEFAULT_PRESET = "realtime"
 
@@ -46,7 +71,7 @@ class IngestOptions:
     """
 
     q: int = 32
-    speed: int = 8
+    speed: int = 9
     realtime: bool = True
     gop: int = 8
     refresh: int = 24
@@ -56,9 +81,9 @@ class IngestOptions:
     verify: bool = True
     threads: int = 2
     row_mt: bool = True
-    tile_columns: int = 0
+    tile_columns: int = 1
     refine_radius: int = 2
-    refine_features: int = 1000
+    refine_features: int = 0
     preset: str | None = "realtime"
 
     @classmethod

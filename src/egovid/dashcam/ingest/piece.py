@@ -202,6 +202,9 @@ class _PieceRun:
         except BaseException as exc:  # handed to the encoder's thread
             for p in pipes:
                 p.close(exc)
+        finally:
+            if self.refs is not None:
+                self.refs.close()
 
     def baseline(self, k: int, j: int, image: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
         """Frame k's baseline: the older drive's frame j (its sequence's numbering), padded and,

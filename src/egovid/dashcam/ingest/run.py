@@ -77,13 +77,15 @@ def ingest_drive(
         clock["split"] = time.perf_counter() - t0
         frames = decode_once(inp.files, *size, clock)
         refs = SegmentSnapshot(archive.blobs, plan.references)
-        encoded = [
-            encode_piece(
-                refs, piece, frames, track, vp.info.fps, size, opts, progress, piece.frames[0], vp.frames, clock
-            )
-            for piece in plan.pieces
-        ]
-        frames.close()
+        try:
+            encoded = [
+                encode_piece(
+                    refs, piece, frames, track, vp.info.fps, size, opts, progress, piece.frames[0], vp.frames, clock
+                )
+                for piece in plan.pieces
+            ]
+        finally:
+            frames.close()
         t0 = time.perf_counter()
         report = commit(archive, inp, vp, track, plan, encoded)
         clock["commit"] = time.perf_counter() - t0

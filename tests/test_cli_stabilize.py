@@ -96,12 +96,14 @@ def test_stabilize_bad_input(tmp_path, still_clip):
 
 @pytest.fixture(scope="module")
 def long_clip(tmp_path_factory):
-    """320x180, 3000 frames (100 s) of one still picture, with a made-up motion CSV: cheap to
-    write, and far too long for `fpv stabilize --motion` to render before a signal arrives."""
+    """1280x720, 600 frames (20 s) of one still picture, with a made-up motion CSV: cheap to
+    write and to plan, but far too long for `fpv stabilize --motion` to render before a signal
+    arrives."""
     folder = tmp_path_factory.mktemp("long")
-    clip, n = folder / "long.mp4", 3000
-    picture = np.random.default_rng(0).integers(0, 256, (180, 320, 3), dtype=np.uint8)
-    with VideoWriter(clip, 320, 180, 30) as w:
+    clip, n = folder / "long.mp4", 600
+    y, x = np.mgrid[0:720, 0:1280]
+    picture = np.stack([x % 256, y % 256, (x // 40 + y // 40) % 2 * 255], axis=2).astype(np.uint8)
+    with VideoWriter(clip, 1280, 720, 30) as w:
         for _ in range(n):
             w.write(picture)
     t = np.arange(n) / 30.0

@@ -12,6 +12,8 @@ import pytest
 
 from egovid.io.trajectory import Trajectory, write_motion_csv
 from egovid.io.video import VideoWriter, count_frames, iter_frames
+from egovid.synth import motions
+from egovid.synth.fpv import render_fpv
 
 from conftest import _wait_for, assert_one_error, cli_env, run_cli
 
@@ -155,9 +157,12 @@ def test_killed_stabilisation_never_leaves_a_partial_output(tmp_path, long_clip)
     assert not (tmp_path / "o.mp4").exists()
 
 
-def test_same_input_gives_identical_json_on_the_estimated_path(tmp_path, shaky_clip):
+def test_same_input_gives_identical_json_on_the_estimated_path(tmp_path):
     # No --motion: the motion is estimated from the pictures (and re-estimated on the output to
     # measure it), twice; every figure must come out identical, not merely close.
+    shaky_clip = tmp_path / "small.mp4"
+    angles = motions.running(60, 8.0, 2.0, 24.0, roll_amp=1.5) + motions.jitter(60, (0.1, 0.1, 0.1), seed=5)
+    render_fpv(shaky_clip, angles, width=320, height=180, noise_std=2.0, seed=5)
     runs, scores = [], []
     for k in range(2):
         out, js = tmp_path / f"s{k}.mp4", tmp_path / f"s{k}.json"

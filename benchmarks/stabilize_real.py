@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.io.camera import resolve_intrinsics
 from egovid.io.video import probe
+from egovid.motion.source import camera_motion
 from egovid.stabilize.measure import measure_video, pixel_measures
 from egovid.stabilize.pipeline import stabilize
 from egovid.stabilize.render import render_stabilized
@@ -52,13 +52,15 @@ def zoom_only(src: Path, dst: Path, keep: np.ndarray) -> float:
 
 def bench_clip(clip: Path, folder: Path, hfov: float | None) -> dict:
     info = probe(clip)
-    intr = resolve_intrinsics(info.width, info.height, None, hfov)
     n = info.frame_count
     eg_out = folder / f"{clip.stem}.egovid.mp4"
     t = time.perf_counter()
-    res = stabilize(clip, eg_out, intrinsics=intr)
+    # What `fpv stabilize` does: motion and intrinsics from the default source, then the stabiliser.
+    cm = camera_motion(clip, "auto", hfov=hfov)
+    intr = cm.camera.intrinsics
+    res = stabilize(clip, eg_out, intrinsics=intr, motion=cm.trajectory)
     eg_wall = time.perf_counter() - t
-    eg_seconds = res.seconds["total"] - res.seconds["measure"]
+    eg_seconds = cm.seconds["total"] + res.seconds["total"] - res.seconds["measure"]
     vs_out = folder / f"{clip.stem}.vidstab.mp4"
     vs = run_vidstab(clip, vs_out, folder, defaults=True)
     vs_measured = measure_video(vs_out, intr)
@@ -70,6 +72,8 @@ def bench_clip(clip: Path, folder: Path, hfov: float | None) -> dict:
         "size": f"{info.width}x{info.height}",
         "fps": info.fps,
         "hfov_deg": intr.hfov_deg,
+        "intrinsics_source": cm.camera.source,
+        "motion_source": cm.source,
         "input": before.to_dict(),
         "egovid": {
             **after.to_dict(),

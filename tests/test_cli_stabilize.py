@@ -5,14 +5,17 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import av
 import numpy as np
+import pytest
 
+from egovid.io.trajectory import Trajectory, write_motion_csv
 from egovid.io.video import VideoWriter, count_frames, iter_frames
+from egovid.synth import motions
+from egovid.synth.fpv import render_fpv
 
-from conftest import assert_one_error, run_cli
+from conftest import _wait_for, assert_one_error, cli_env, run_cli
 
 
 def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
@@ -93,30 +96,82 @@ def test_stabilize_bad_input(tmp_path, still_clip):
     assert not out.exists()
 
 
-def _wait_for_partial(folder, proc, timeout=120.0):
-    """Wait until the writer's temporary file exists, i.e. rendering is under way."""
-    t0 = time.time()
-    while time.time() - t0 < timeout and proc.poll() is None:
-        if list(folder.glob(".o.part-*")):
-            return True
-        time.sleep(0.02)
-    return False
+@pytest.fixture(scope="module")
+def long_clip(tmp_path_factory):
+    """1280x720, 600 frames (20 s) of one still picture, with a made-up motion CSV: cheap to
+    write and to plan, but far too long for `fpv stabilize --motion` to render before a signal
+    arrives."""
+    folder = tmp_path_factory.mktemp("long")
+    clip, n = folder / "long.mp4", 600
+    y, x = np.mgrid[0:720, 0:1280]
+    picture = np.stack([x % 256, y % 256, (x // 40 + y // 40) % 2 * 255], axis=2).astype(np.uint8)
+    with VideoWriter(clip, 1280, 720, 30) as w:
+        for _ in range(n):
+            w.write(picture)
+    t = np.arange(n) / 30.0
+    angles = np.stack([5 * np.sin(t), 2 * np.sin(2.1 * t), np.zeros(n)], axis=1)
+    write_motion_csv(folder / "long.csv", Trajectory.from_euler(t, angles))
+    return clip, folder / "long.csv"
 
 
-def test_interrupted_stabilisation_leaves_no_output(tmp_path, shaky_clip):
-    out = tmp_path / "o.mp4"
-    cmd = [sys.executable, "-m", "egovid", "fpv", "stabilize", str(shaky_clip), "-o", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert _wait_for_partial(tmp_path, proc), "rendering never started"
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode != 0
-    assert "Traceback" not in err
-    assert not out.exists()
-    assert not list(tmp_path.glob(".o.part-*")), "temporary file left behind after Ctrl-C"
-    # kill -9 cannot clean up, but the target path still never holds a partial video.
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    assert _wait_for_partial(tmp_path, proc)
+def _start_and_wait_for_render(tmp_path, clip, motion_csv, **kw) -> subprocess.Popen:
+    """Start `fpv stabilize` and return once its output's temporary file exists (rendering is
+    under way); fail loudly if the command ends first or the file never appears."""
+    cmd = [sys.executable, "-m", "egovid", "fpv", "stabilize", str(clip), "-o", str(tmp_path / "o.mp4")]
+    cmd += ["--motion", str(motion_csv), "--no-measure"]
+    proc = subprocess.Popen(cmd, env=cli_env(), **kw)
+
+    def rendering() -> bool:
+        if proc.poll() is not None:
+            pytest.fail(f"fpv stabilize ended (rc {proc.returncode}) before it was interrupted")
+        return any(".part-" in p.name for p in tmp_path.iterdir())
+
+    try:
+        _wait_for(rendering, "fpv stabilize to start writing its output", 300)
+    except BaseException:
+        proc.kill()
+        proc.wait()
+        raise
+    return proc
+
+
+@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"])
+def test_interrupted_stabilisation_leaves_no_output(tmp_path, long_clip, sig, code):
+    proc = _start_and_wait_for_render(tmp_path, *long_clip, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == code, err
+    assert "interrupted: no partial output was kept" in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [], "output or temporary file left behind"
+
+
+def test_killed_stabilisation_never_leaves_a_partial_output(tmp_path, long_clip):
+    # kill -9 cannot clean up, but the target path never holds a partial video.
+    proc = _start_and_wait_for_render(tmp_path, *long_clip, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     proc.kill()
     proc.wait()
-    assert not out.exists()
+    assert not (tmp_path / "o.mp4").exists()
+
+
+def test_same_input_gives_identical_json_on_the_estimated_path(tmp_path):
+    # No --motion: the motion is estimated from the pictures (and re-estimated on the output to
+    # measure it), twice; every figure must come out identical, not merely close.
+    shaky_clip = tmp_path / "small.mp4"
+    angles = motions.running(60, 8.0, 2.0, 24.0, roll_amp=1.5) + motions.jitter(60, (0.1, 0.1, 0.1), seed=5)
+    render_fpv(shaky_clip, angles, width=320, height=180, noise_std=2.0, seed=5)
+    runs, scores = [], []
+    for k in range(2):
+        out, js = tmp_path / f"s{k}.mp4", tmp_path / f"s{k}.json"
+        r = run_cli("fpv", "stabilize", shaky_clip, "-o", out, "--json", js)
+        assert r.returncode == 0, r.stderr
+        runs.append({**json.loads(js.read_text()), "output": None})
+        r = run_cli("fpv", "score", shaky_clip, "--json", tmp_path / f"score{k}.json")
+        assert r.returncode == 0, r.stderr
+        scores.append(json.loads((tmp_path / f"score{k}.json").read_text()))
+    assert "measured" in runs[0]
+    assert json.dumps(runs[0], sort_keys=True) == json.dumps(runs[1], sort_keys=True)
+    assert json.dumps(scores[0], sort_keys=True) == json.dumps(scores[1], sort_keys=True)

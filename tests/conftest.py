@@ -119,6 +119,7 @@ def pg_url():
     run = lambda *a: subprocess.run([*as_user, *map(str, a)], check=True, capture_output=True)  # noqa: E731
     run(initdb, "-D", data, "-A", "trust", "-U", "postgres", "-E", "UTF8", "--no-sync")
     run(pg_ctl, "-D", data, "-w", "-l", base / "server.log", "-o", opts, "start")
+    _stop_if_we_die((data / "postmaster.pid").read_text().split()[0], 3)  # SIGQUIT: an immediate stop
     try:
         yield f"postgresql://postgres@/postgres?host={base}&port=5432"
     finally:
@@ -138,9 +139,27 @@ def _wait_for(predicate, what: str, timeout: float) -> None:
 
 
 def _spawn(args: list[str], log: Path, env: dict) -> subprocess.Popen:
-    """Start a server process in its own session, its output going to ``log``."""
+    """Start a server process in its own session, its output going to ``log``; its process group
+    is killed if this pytest process dies without tearing it down (_stop_if_we_die)."""
     with open(log, "w") as fh:
-        return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        proc = subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+    _stop_if_we_die(f"-{proc.pid}", 9)
+    return proc
+
+
+def _stop_if_we_die(target: str, signum: int) -> None:
+    """Servers run in their own session, so they would outlive a pytest killed before its teardown
+    (kill -9, an OOM kill, a CI timeout): a tiny watcher sends ``signum`` to ``target`` (a pid, or
+    ``-PGID`` for a process group) once this process is gone; it ends by itself when the target is
+    gone first (a normal teardown)."""
+    script = 'while kill -0 "$1" 2>/dev/null; do kill -0 "$2" 2>/dev/null || exit 0; sleep 1; done; kill -"$3" "$2"'
+    subprocess.Popen(
+        ["sh", "-c", script, "egovid-test-watch", str(os.getpid()), target, str(signum)],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
 
 
 @pytest.fixture(scope="session")

@@ -112,3 +112,28 @@ def test_a_task_starts_after_the_tasks_it_waits_for(tmp_path):
     for cfg in (EngineConfig(workers=1), EngineConfig(workers=2)):
         out = {o.key: o.value for o in run_tasks(stamp, items, config=cfg, keys=["c", "b", "a"], after=after)}
         assert out["b"][0] >= out["a"][1] and out["c"][0] >= out["b"][1], out
+
+
+def test_another_client_opened_and_closed_meanwhile_does_not_stall_the_run(dask_scheduler):
+    """A second Client in this process becomes Dask's default client; closing it while a run is
+    waiting must not stall the run (its completion tracking runs on the run's own client's loop)."""
+    import threading
+
+    from distributed import Client
+
+    after = {"b": ["a"], "c": ["b"]}
+    with Client(dask_scheduler, timeout=60, set_as_default=False) as own:
+        other = Client(dask_scheduler, timeout=60)  # the default client from now on
+        try:
+            runs = run_tasks(
+                square, [1, 2, 3], config=EngineConfig(scheduler=dask_scheduler), keys="abc", client=own, after=after
+            )
+            first = next(runs)  # the run is under way (task "a" finished, "b" submitted)
+        finally:
+            other.close()
+        rest: list = []
+        t = threading.Thread(target=lambda: rest.extend(runs), daemon=True)
+        t.start()
+        t.join(60)
+        assert not t.is_alive(), "the run stalled after another client closed"
+    assert {o.key: o.value for o in [first, *rest]} == {"a": 1, "b": 4, "c": 9}

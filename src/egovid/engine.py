@@ -14,7 +14,9 @@ Dask pitfalls handled here: ``submit`` defaults to ``pure=True`` (identical argu
 we always pass ``pure=False`` and a unique key); a task that *raises* is retried ``retries`` times; a
 task whose worker *dies* (killed, out of memory) is rescheduled by the scheduler on another worker
 (up to ``distributed.scheduler.allowed-failures`` times, then it fails with ``KilledWorker``). So a
-task may run more than once: tasks must be idempotent (write atomically, commit once).
+task may run more than once: tasks must be idempotent (write atomically, commit once). Nothing here
+goes through Dask's *default* client (``as_completed``, ``wait``): that is the last Client created in
+the process, possibly someone else's, already closed.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
+import queue
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -30,6 +33,7 @@ from typing import Any
 from egovid.errors import EgovidError
 
 SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
+_POLL_S = 5.0  # the longest a cluster run waits before it looks at every task's state again
 
 
 @dataclass(frozen=True)
@@ -165,17 +169,17 @@ def run_tasks(
     with contextlib.ExitStack() as stack:
         if client is None:
             client = stack.enter_context(open_client(config))
-        from distributed import as_completed
-
         token = uuid.uuid4().hex[:8]
         futures: dict = {}
         pending = dict(zip(keys, items, strict=True))
         finished: set[str] = set()
+        running: list = []  # submitted, not yet reported
+        wakeups: queue.SimpleQueue = queue.SimpleQueue()
 
         def submit_ready() -> list:
             ready = [k for k in pending if waits[k] <= finished]
-            if not ready and pending and not futures_running():
-                ready = [next(iter(pending))]  # a cycle in ``after``: break it
+            if not ready and pending and not running:
+                ready = [next(iter(pending))]  # a cycle in ``after`` (nothing else in flight): break it
             out = []
             for key in ready:
                 item = pending.pop(key)
@@ -184,22 +188,34 @@ def run_tasks(
                 out.append(fut)
             return out
 
-        def futures_running() -> bool:
-            return any(not f.done() for f in futures)
+        # Not ``distributed.as_completed`` nor ``distributed.wait``: both work through Dask's
+        # *default* client (the last Client created in this process), which need not be ``client``.
+        # as_completed tracked our futures on that client's event loop; once that other client had
+        # closed (a caller's, a test's), completions were never seen and the run hung. A future's
+        # done-callback runs on its own client's loop; it only wakes this loop, which then looks at
+        # every running future's state (again at least every _POLL_S seconds, a missed wake-up
+        # costs no more than that).
+        def track(new: list) -> None:
+            for fut in new:
+                running.append(fut)
+                fut.add_done_callback(wakeups.put)
 
-        queue = as_completed(submit_ready())
+        track(submit_ready())
         try:
-            for fut in queue:
-                key, item = futures[fut]
-                try:
-                    yield TaskOutcome(key, item, value=fut.result())
-                except Exception as exc:  # the task failed for good, or its worker kept dying
-                    yield TaskOutcome(key, item, error=exc)
-                finally:
+            while running:
+                with contextlib.suppress(queue.Empty):
+                    wakeups.get(timeout=_POLL_S)
+                for fut in [f for f in running if f.done()]:
+                    running.remove(fut)
+                    key, item = futures[fut]
+                    try:
+                        outcome = TaskOutcome(key, item, value=fut.result())
+                    except Exception as exc:  # the task failed for good, its worker kept dying, cancelled
+                        outcome = TaskOutcome(key, item, error=exc)
                     finished.add(key)
                     fut.release()
-                    for new in submit_ready():
-                        queue.add(new)
+                    track(submit_ready())  # before yielding: they run while the caller looks
+                    yield outcome
         finally:
             for fut in futures:
                 if not fut.done():

@@ -263,3 +263,12 @@ def s3_server(tmp_path_factory):
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+def pytest_terminal_summary(terminalreporter) -> None:
+    """Lines a test asked to show in every run's summary (``record_property("summary", line)``),
+    e.g. the size of the bad-input table; reports carry them back from pytest-xdist workers too."""
+    for report in terminalreporter.stats.get("passed", []):
+        for key, value in getattr(report, "user_properties", ()):
+            if key == "summary" and report.when == "call":
+                terminalreporter.write_line(str(value))

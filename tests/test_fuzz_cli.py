@@ -357,11 +357,12 @@ def _commands() -> set[str]:
     return out
 
 
-def test_the_table_is_big_enough_and_covers_every_command(capsys):
+def test_the_table_is_big_enough_and_covers_every_command(record_property):
     covered = {" ".join(c[1].split()[:2]) for c in CASES} | {c[1].split()[0] for c in CASES}
     missing = sorted(_commands() - covered)
-    with capsys.disabled():  # shown in the test output even with -q
-        print(f"\n[fuzz] {len(CASES)} bad inputs over {len(_commands()) - len(missing)} of {len(_commands())} commands")
+    # printed in the run's summary by conftest.pytest_terminal_summary (also under pytest-xdist)
+    n_cmd = len(_commands())
+    record_property("summary", f"[fuzz] {len(CASES)} bad inputs over {n_cmd - len(missing)} of {n_cmd} commands")
     assert len(CASES) >= 60
     assert not missing, f"commands with no bad-input case: {missing}"
 

@@ -157,7 +157,6 @@ def read_gpx(path: Path) -> GpsTrack:
 
 
 def read_nmea(path: Path) -> GpsTrack:
-    import pynmea2
 
     fixes: dict[float, list] = {}
     dropped = {"checksum": 0, "void or estimated": 0, "unparsable": 0}
@@ -167,18 +166,12 @@ def read_nmea(path: Path) -> GpsTrack:
         line = line.strip()
         if not line.startswith("$"):
             continue
-        try:
-            msg = pynmea2.parse(line, check=True)
-        except pynmea2.ChecksumError:
-            dropped["checksum"] += 1
-            continue
-        except pynmea2.ParseError:
-            dropped["unparsable"] += 1
+        msg = parse_nmea(line, dropped)
+        if msg is None:
             continue
         kind = msg.sentence_type
         if kind == "RMC":
-            mode = getattr(msg, "mode_indicator", None) if len(msg.data) > 11 else None
-            if msg.status != "A" or mode in ("E", "N", "M", "S") or not msg.datestamp or not msg.timestamp:
+            if not rmc_has_fix(msg):
                 dropped["void or estimated"] += 1
                 continue
             day = msg.datestamp
@@ -268,3 +261,24 @@ def read_track(path: str | os.PathLike) -> GpsTrack:
     if "lat" in first and ("lon" in first or "lng" in first):
         return read_csv(p)
     raise EgovidError(f"{p} is not a GPS track this tool reads", _FIX)
+
+
+def parse_nmea(line: str, dropped: dict) -> object | None:
+    """One NMEA 0183 sentence parsed by pynmea2 (checksum checked), or None with the reason
+    counted in ``dropped`` ("checksum" or "unparsable")."""
+    import pynmea2
+
+    try:
+        return pynmea2.parse(line.strip(), check=True)
+    except pynmea2.ChecksumError:
+        dropped["checksum"] += 1
+    except pynmea2.ParseError:
+        dropped["unparsable"] += 1
+    return None
+
+
+def rmc_has_fix(msg) -> bool:
+    """An RMC sentence with a valid fix: status A, not an estimated/manual/simulated/no-fix mode,
+    with its date and time."""
+    mode = getattr(msg, "mode_indicator", None) if len(msg.data) > 11 else None
+    return msg.status == "A" and mode not in ("E", "N", "M", "S") and bool(msg.datestamp) and bool(msg.timestamp)

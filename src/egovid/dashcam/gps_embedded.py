@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.dashcam.gps import GpsTrack, _finish
+from egovid.dashcam.gps import GpsTrack, _finish, parse_nmea, rmc_has_fix
 
 #: GPS times outside these years are not trusted (unset clock, GPS week roll-over).
 PLAUSIBLE_YEARS = (2000, 2100)
@@ -194,7 +194,6 @@ def fixes_from_nmea_samples(samples: Iterable[tuple[float, str]], source: str = 
     text track holds them. RMC sentences give date, time, position, speed and course (status A
     only, not dead-reckoned); GGA sentences (fix quality 1-5) add positions at RMC's date. Sentences
     with a bad checksum are dropped and counted. A fix's video time is its sample's."""
-    import pynmea2
 
     dropped = {"checksum": 0, "no fix": 0, "unparsable": 0}
     rmc: dict[float, tuple] = {}
@@ -202,18 +201,12 @@ def fixes_from_nmea_samples(samples: Iterable[tuple[float, str]], source: str = 
     day = None
     for vt, text in samples:
         for line in re.findall(r"\$[A-Z]{2}[A-Z]{3},[^\r\n$]*", text):
-            try:
-                msg = pynmea2.parse(line.strip(), check=True)
-            except pynmea2.ChecksumError:
-                dropped["checksum"] += 1
-                continue
-            except pynmea2.ParseError:
-                dropped["unparsable"] += 1
+            msg = parse_nmea(line, dropped)
+            if msg is None:
                 continue
             kind = msg.sentence_type
             if kind == "RMC":
-                mode = getattr(msg, "mode_indicator", None) if len(msg.data) > 11 else None
-                if msg.status != "A" or mode in ("E", "N", "M", "S") or not msg.datestamp or not msg.timestamp:
+                if not rmc_has_fix(msg):
                     dropped["no fix"] += 1
                     continue
                 day = msg.datestamp

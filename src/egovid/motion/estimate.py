@@ -64,7 +64,7 @@ class MotionOptions:
 
     lags: tuple[int, ...] = (1, 2, 5)
     features: str = "orb"
-    n_features: int = 800
+    n_features: int = 500
     work_width: int = DEFAULT_WORK_WIDTH
     threshold_px: float = 1.0
     refine: bool = True

@@ -100,8 +100,9 @@ class StabilizeResult:
 
 @contextlib.contextmanager
 def _side_process() -> Iterator[ProcessPoolExecutor | None]:
-    """One forked worker process (None where the platform cannot fork)."""
-    if "fork" not in multiprocessing.get_all_start_methods():
+    """One forked worker process; None where the platform cannot fork or this process may not
+    have children (a daemonic process: Dask workers, multiprocessing pool workers)."""
+    if "fork" not in multiprocessing.get_all_start_methods() or multiprocessing.current_process().daemon:
         yield None
         return
     pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
@@ -143,7 +144,7 @@ def plan_motion(
     # Python and the second core would idle. Roll waits for both (its intervals move with them).
     with _side_process() as side:
         pending = {}
-        if side is not None:
+        if side is not None and "pitch" in axes:
             col = AXES.index("pitch")
             pending["pitch"] = side.submit(
                 optimize_axis, a30[:, col], "pitch", intr.hfov_deg, intr.vfov_deg, model, opts, context=edited30

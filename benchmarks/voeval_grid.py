@@ -28,83 +28,20 @@ Measured on this 2-core machine, shared: run the sample with /work/coord/bin/tim
 from __future__ import annotations
 
 import argparse
-import contextlib
-import json
 import os
 import shutil
-import signal
-import subprocess
-import sys
 import time
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-from egovid.engine import EngineConfig
+from egovid.engine import EngineConfig, spawn_cluster
 from egovid.voeval.layout import LEVELS
 from egovid.voeval.report import write_report
 from egovid.voeval.runner import GridConfig, load_results, run_grid
 
 from _common import cache_dir, report
-
-
-@contextlib.contextmanager
-def local_cluster(base: Path):
-    """`dask scheduler` + `dask worker --nworkers 2 --nthreads 1` on 127.0.0.1; yields the address."""
-    dask = str(Path(sys.executable).parent / "dask")
-    sched = base / "scheduler.json"
-    sched.unlink(missing_ok=True)
-    local = ["--host", "127.0.0.1", "--no-dashboard"]
-    procs = [
-        subprocess.Popen(
-            [dask, "scheduler", *local, "--port", "0", "--scheduler-file", str(sched)],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            start_new_session=True,
-        )
-    ]
-    try:
-        deadline = time.monotonic() + 120
-        while not (sched.exists() and sched.stat().st_size):
-            if time.monotonic() > deadline:
-                raise TimeoutError("the Dask scheduler did not start within 120 s")
-            time.sleep(0.2)
-        address = json.loads(sched.read_text())["address"]
-        procs.append(
-            subprocess.Popen(
-                [
-                    dask,
-                    "worker",
-                    address,
-                    *local,
-                    "--nworkers",
-                    "2",
-                    "--nthreads",
-                    "1",
-                    "--local-directory",
-                    str(base / "workers"),
-                ],
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                start_new_session=True,
-            )
-        )
-        from distributed import Client
-
-        with Client(address, timeout=60) as c:
-            c.wait_for_workers(2, timeout=180)
-        yield address
-    finally:
-        for p in reversed(procs):
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(p.pid, signal.SIGTERM)
-        for p in reversed(procs):
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-
 
 WORKERS = 2
 
@@ -218,7 +155,7 @@ def main() -> None:
         if a.mode == "both":  # same prepared scenes and ladder: the cluster run times the cells only
             for sub in ("scenes", "videos"):
                 shutil.copytree(out / sub, cl / sub, dirs_exist_ok=True)
-        with local_cluster(cl) as address:
+        with spawn_cluster(cl / "dask", workers=WORKERS) as address:
             t = time.perf_counter()
             r = run_grid(cl, cfg, EngineConfig(scheduler=address))
             total = time.perf_counter() - t

@@ -166,39 +166,23 @@ def _stop_if_we_die(target: str, signum: int) -> None:
 def dask_scheduler(tmp_path_factory):
     """A real Dask cluster for the session: ``dask scheduler`` and ``dask worker --nworkers 2`` as
     separate processes, on 127.0.0.1 and free ports; yields the scheduler address."""
-    import json
-    import signal
+    from egovid.engine import spawn_cluster
 
-    from distributed import Client
-
-    base = tmp_path_factory.mktemp("dask")
-    sched_file = base / "scheduler.json"
-    dask = str(Path(sys.executable).parent / "dask")
     # the tests' folder (for task functions) ahead of any PYTHONPATH (the code under test)
     paths = [str(Path(__file__).parent), os.environ.get("PYTHONPATH")]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, paths))}
-    local = ["--host", "127.0.0.1", "--no-dashboard"]
-    procs = [_spawn([dask, "scheduler", *local, "--port", "0", "--scheduler-file", str(sched_file)],
-                    base / "scheduler.log", env)]
-    try:
-        _wait_for(lambda: sched_file.exists() and sched_file.stat().st_size > 0, "the Dask scheduler", 120)
-        address = json.loads(sched_file.read_text())["address"]
-        workers = [dask, "worker", address, *local, "--nworkers", "2", "--nthreads", "1",
-                   "--local-directory", str(base / "workers")]
-        procs.append(_spawn(workers, base / "workers.log", env))
-        with Client(address, timeout=60) as client:
-            client.wait_for_workers(2, timeout=180)
+
+    def watch(proc: subprocess.Popen) -> None:
+        _stop_if_we_die(f"-{proc.pid}", 9)
+
+    with contextlib.ExitStack() as stack:
+        try:
+            address = stack.enter_context(
+                spawn_cluster(tmp_path_factory.mktemp("dask"), workers=2, env=env, on_spawn=watch)
+            )
+        except TimeoutError as exc:
+            pytest.fail(str(exc))
         yield address
-    finally:
-        for p in reversed(procs):
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(p.pid, signal.SIGTERM)
-        for p in reversed(procs):
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait()
 
 
 def _free_ports(n: int) -> list[int]:

@@ -9,6 +9,9 @@ grid both go through it, so a local run and a cluster run share one code path.
   ``LocalCluster`` of worker processes bound to 127.0.0.1, or ``None`` for in-process work.
 * :func:`run_tasks` runs ``fn(item)`` for every item and yields a :class:`TaskOutcome` per task as
   tasks finish.
+* :func:`spawn_cluster` starts ``dask scheduler`` and ``dask worker`` as separate processes on
+  127.0.0.1 (what ``--scheduler`` talks to on a real cluster), for the tests and benchmarks that
+  try the cluster path on one machine.
 
 Dask pitfalls handled here: ``submit`` defaults to ``pure=True`` (identical arguments would run once;
 we always pass ``pure=False`` and a unique key); a task that *raises* is retried ``retries`` times; a
@@ -23,11 +26,17 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import json
 import os
 import queue
+import signal
+import subprocess
+import sys
+import time
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from egovid.errors import EgovidError
@@ -234,3 +243,85 @@ def _run_here(fn: Callable[[Any], Any], key: str, item: Any, retries: int) -> Ta
             if _attempt >= retries:
                 break
     return TaskOutcome(key, item, error=error)
+
+
+@contextlib.contextmanager
+def spawn_cluster(
+    folder: Path,
+    *,
+    workers: int = 2,
+    env: Mapping[str, str] | None = None,
+    on_spawn: Callable[[subprocess.Popen], None] | None = None,
+    timeout: float = 180.0,
+) -> Iterator[str]:
+    """Start ``dask scheduler`` and ``dask worker --nworkers WORKERS --nthreads 1`` as separate
+    processes (each in its own process group) on 127.0.0.1 with free ports and no dashboard; yield
+    the scheduler address once all workers have joined; stop them (SIGTERM, then SIGKILL after
+    30 s) on exit.
+
+    ``folder`` holds the scheduler file, the workers' local directory and the two logs
+    (``scheduler.log``, ``workers.log``). ``env`` is the processes' environment (default: this
+    one's). ``on_spawn`` is called with each started process (e.g. to kill it if the caller dies).
+    A scheduler or workers not up within ``timeout`` seconds raise :class:`TimeoutError`.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    sched_file = folder / "scheduler.json"
+    sched_file.unlink(missing_ok=True)
+    dask = str(Path(sys.executable).parent / "dask")
+    local = ["--host", "127.0.0.1", "--no-dashboard"]
+    procs: list[subprocess.Popen] = []
+
+    def spawn(args: list[str], log: str) -> None:
+        with open(folder / log, "w") as fh:
+            proc = subprocess.Popen(
+                args,
+                stdout=fh,
+                stderr=subprocess.STDOUT,
+                env=None if env is None else dict(env),
+                start_new_session=True,
+            )
+        procs.append(proc)
+        if on_spawn is not None:
+            on_spawn(proc)
+
+    try:
+        spawn([dask, "scheduler", *local, "--port", "0", "--scheduler-file", str(sched_file)], "scheduler.log")
+        deadline = time.monotonic() + timeout
+        while not (sched_file.exists() and sched_file.stat().st_size > 0):
+            if time.monotonic() > deadline or procs[0].poll() is not None:
+                raise TimeoutError(
+                    f"the Dask scheduler did not start within {timeout:.0f} s (see {folder / 'scheduler.log'})"
+                )
+            time.sleep(0.2)
+        address = json.loads(sched_file.read_text())["address"]
+        spawn(
+            [
+                dask,
+                "worker",
+                address,
+                *local,
+                "--nworkers",
+                str(workers),
+                "--nthreads",
+                "1",
+                "--local-directory",
+                str(folder / "workers"),
+            ],
+            "workers.log",
+        )
+        from distributed import Client
+
+        with Client(address, timeout=60) as client:
+            client.wait_for_workers(workers, timeout=max(1.0, deadline - time.monotonic()))
+        yield address
+    finally:
+        for p in reversed(procs):
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(p.pid, signal.SIGKILL)
+                p.wait()

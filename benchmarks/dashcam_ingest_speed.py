@@ -2,7 +2,7 @@
 drive of its road) and a joint one (aligned and coded against the root), seconds per stage, and
 ffmpeg's libvpx-vp9 encoding the same input at matched settings in the same run (the ratio), next
 to each preset's BD-rate through the archive's own ingest (benchmarks/dashcam_bdrate.py, read from
-docs/figures/dashcam_bdrate.json when it has the preset).
+docs/figures/dashcam_bdrate_ingest.json when it has the preset).
 
 Targets (issue 14), this 2-core machine, default preset: joint 1280x720 >= 30 fps, 1920x1080 >= 15
 fps. Run it under /work/coord/bin/timed (the whole machine).
@@ -82,7 +82,8 @@ def ffmpeg_vp9(video: Path, opts: IngestOptions, out: Path) -> dict:
 
 
 def bd_rates() -> dict:
-    p = ROOT / "docs" / "figures" / "dashcam_bdrate.json"
+    """Each preset's BD-rate per set through the archive's own ingest (the copy the docs quote)."""
+    p = ROOT / "docs" / "figures" / "dashcam_bdrate_ingest.json"
     if not p.exists():
         return {}
     data = json.loads(p.read_text())

@@ -107,6 +107,31 @@ def test_streamed_alignment_gives_the_whole_sequence_aligners_matches(sequences,
     assert lag <= (24 if kind == "orb" else 0)  # two smoothing windows (more where a stretch begins)
 
 
+def test_aligning_every_second_frame_searches_half_the_frames_and_keeps_the_matches(sequences):
+    """``every`` = 2: half the moving frames are searched, the others interpolated; the matches
+    stay within a frame of those of every frame searched (a steady zoom: the line is exact)."""
+    ref, new, stopped, prior = sequences
+    speed_new = np.where(stopped, 0.0, 8.0)
+    speed_ref = np.full(len(ref), 10.0)
+    got, searched = {}, {}
+    for every in (1, 2):
+        mem = MemoryRef(ref)
+        stream = StreamingAlignment("orb", mem, prior, speed_new, speed_ref, stopped, 30.0, every)
+        step, calls = stream.search.step, []
+        stream.search.step = lambda k, f, step=step, calls=calls: calls.append(k) or step(k, f)
+        out = []
+        for g in new:
+            out += stream.push(g)
+            mem.release_below(stream.lowest_needed())
+            mem.low = stream.lowest_needed()
+        got[every], searched[every] = np.array(out), calls
+    assert len(got[2]) == len(new)
+    assert np.abs(got[2] - got[1]).max() <= 1
+    moving_searched = [k for k in searched[2] if not stopped[k]]
+    assert len(moving_searched) <= (int((~stopped).sum()) + 1) // 2 + 2  # + the last and the one before the stop
+    assert len(searched[1]) == len(new)
+
+
 def test_the_default_options_are_the_default_preset_and_options_override_presets():
     from egovid.dashcam.ingest.options import DEFAULT_PRESET, PRESETS, IngestOptions
     from egovid.errors import EgovidError

@@ -106,8 +106,10 @@ def ingest(
     preset: str = typer.Option(
         None,
         "--preset",
-        help="realtime (default: keeps up with a 30 fps camera at 720p on two cores) | balanced | archive "
-        "(libvpx's good-quality deadline: smallest files, several times slower). The options below override it.",
+        help="realtime (default: libvpx's realtime deadline, the fastest; about 20 fps for a 720p drive coded "
+        "against an older one on two cores) | balanced (libvpx's good-quality deadline on 2 threads: the older "
+        "drive saves about twice as much, several times slower) | archive (good-quality, 1 thread: smallest "
+        "files, slowest). See docs/dashcam.md. The options below override it.",
     ),
     q: int = typer.Option(32, min=0, max=63, help="VP9 quantiser (0 = best quality, 63 = smallest)."),
     speed: int = typer.Option(None, min=0, max=9, help="libvpx cpu-used (default: the preset's): higher = faster."),

@@ -36,6 +36,8 @@ from dataclasses import dataclass
 import cv2
 import numba
 import numpy as np
+from scipy.ndimage import median_filter
+from scipy.signal import savgol_filter
 
 from egovid.motion.features import FeatureExtractor, FrameFeatures
 
@@ -193,6 +195,8 @@ class OrbSearch:
         self.fallbacks = 0
         self.prev: int | None = None
         self.history: list[int] = []
+        self.moved: list[int] = []  # moving frames seen up to each history entry
+        self.n_moving = 0
         self.ratio_prev: float | None = None
         self.wide = max(6, int(1.5 * fps))
         # Metres the reference advances per frame, to turn the GPS error into a tolerance in frames.
@@ -202,27 +206,37 @@ class OrbSearch:
         """No reference frame below this will be asked for again."""
         return 0 if self.prev is None else self.prev
 
+    def skip(self, k: int) -> None:
+        """New frame ``k`` is not searched (the caller interpolates its match)."""
+        if not self.stopped[k]:
+            self.n_moving += 1
+
     def step(self, k: int, feat: FrameFeatures) -> tuple[int, int]:
-        """The match of new frame ``k`` (frames come in order) and the inlier count that chose it
-        (0: held over a stop, or the GPS prior)."""
+        """The match of new frame ``k`` (frames come in order; those in between may be
+        :meth:`skip`-ped) and the inlier count that chose it (0: held over a stop, or the GPS
+        prior)."""
         m, prev, fps, prior = self.m, self.prev, self.fps, self.prior
         scorer = self.scorer
         scorer._cache.clear()  # keys are (k, j) of this frame only
         p = int(np.clip(round(prior[k]), 0, m - 1))
         if prev is not None and self.stopped[k]:
             return prev, 0
+        self.n_moving += 1
         if prev is None:
             cands = range(max(0, p - self.wide), min(m, p + self.wide + 1))
         else:
             # Reference frames passed per new frame: the speed ratio of the drives, scaled like the
-            # thesis' S by how the ratio changed since the last second's mean step.
+            # thesis' S by how the ratio changed since the last second's mean step. S covers twice
+            # the expected step; after skipped frames, the steps since the last search and one more.
             ratio = float(np.clip(self.speed_new[k] / max(self.speed_ref[min(prev, m - 1)], 0.5), 0.0, 4.0))
-            steps = np.diff(self.history[-int(fps) :]) if len(self.history) > 1 else np.array([ratio])
-            mean_step = float(np.mean(steps)) if len(steps) else ratio
+            gap = self.n_moving - self.moved[-1]
+            span = max(1, int(fps) // gap)
+            hist, moved = self.history[-span:], self.moved[-span:]
+            mean_step = (hist[-1] - hist[0]) / (moved[-1] - moved[0]) if len(hist) > 1 else ratio
             if self.ratio_prev and self.ratio_prev > 0.05:
                 mean_step *= ratio / self.ratio_prev
             self.ratio_prev = ratio
-            S = math.ceil(min(max(mean_step, ratio), 2.0 * ratio + 0.5) * 2.0) + 1
+            S = math.ceil(min(max(mean_step, ratio), 2.0 * ratio + 0.5) * (gap + 1)) + 1
             cands = range(prev, min(m, prev + S + 1))
         scored = [(scorer.inliers(feat, self.ref_feats(j), (k, j)), j) for j in cands]
         best_n = max((c for c, _ in scored), default=-1)
@@ -242,6 +256,7 @@ class OrbSearch:
                 best_n, best_j = max(scored)
         self.prev = int(best_j)
         self.history = [*self.history[-int(fps) :], self.prev]
+        self.moved = [*self.moved[-int(fps) :], self.n_moving]
         return int(best_j), int(best_n)
 
 
@@ -269,9 +284,6 @@ def align_orb(
 def _filter_stretch(x: np.ndarray, window: int, median: int | None, length: int) -> np.ndarray:
     """Median then local-line filter of ``x``, a stretch of ``length`` frames (or a slice of one:
     the filter sizes follow the whole stretch)."""
-    from scipy.ndimage import median_filter
-    from scipy.signal import savgol_filter
-
     y = median_filter(x, min(median or window, length), mode="nearest")
     n = min(window, length)
     return savgol_filter(y, n - (1 - n % 2), 1, mode="interp")  # an odd window of >= 3

@@ -489,9 +489,7 @@ def encode_segment(
     header = pack_header(width, height, settings.q, body["packets"], gop, settings.refresh, starts)
     blob = b"" if spool is not None else header + b"".join(map(frame_packet, packets))
     offsets = [len(header) + o for o in run_body] + [len(header) + body["bytes"]]
-    return EncodedSegment(
-        blob, k0, h.hexdigest(), float(psnr), sizes, run_digests, header, offsets[-1], offsets, spool
-    )
+    return EncodedSegment(blob, k0, h.hexdigest(), float(psnr), sizes, run_digests, header, offsets[-1], offsets, spool)
 
 
 def decode_segment(

@@ -14,7 +14,8 @@ BASELINE_ALIGN = ("none", "gain", "similarity")
 #: benchmarks/dashcam_ingest_speed.py (speed) and benchmarks/dashcam_bdrate.py (savings).
 PRESETS: dict[str, dict] = {
     # libvpx's realtime deadline at its fastest speed, two threads sharing rows and two tile
-    # columns; one set of ORB key points per frame shared by the search and the refinement.
+    # columns; one set of ORB key points per frame shared by the search and the refinement, which
+    # measure every 2nd frame (the others interpolated).
     "realtime": {
         "realtime": True,
         "speed": 9,
@@ -23,16 +24,21 @@ PRESETS: dict[str, dict] = {
         "tile_columns": 1,
         "refine_radius": 2,
         "refine_features": 0,
+        "align_every": 2,
     },
-    # realtime deadline, a slower search in the encoder.
+    # libvpx's good-quality deadline at its fastest speed, two threads sharing rows and two tile
+    # columns: the different-day saving of the archive preset's deadline (libvpx's realtime mode
+    # never searches ALTREF and skips GOLDEN, the older drive, in much of the frame; see
+    # docs/dashcam.md) at about twice its speed.
     "balanced": {
-        "realtime": True,
-        "speed": 6,
+        "realtime": False,
+        "speed": 5,
         "threads": 2,
         "row_mt": True,
-        "tile_columns": 0,
+        "tile_columns": 1,
         "refine_radius": 3,
         "refine_features": 1000,
+        "align_every": 1,
     },
     # libvpx's good-quality deadline, one thread: the smallest files, the thesis-matched figures.
     "archive": {
@@ -43,6 +49,7 @@ PRESETS: dict[str, dict] = {
         "tile_columns": 0,
         "refine_radius": 3,
         "refine_features": 1000,
+        "align_every": 1,
     },
 }
 DEFAULT_PRESET = "realtime"
@@ -67,6 +74,8 @@ class IngestOptions:
     ``threads``, ``row_mt``, ``tile_columns``: libvpx's threading (``tile_columns`` is log2);
     ``refine_radius``: reference frames either side of a match measured by the vertical-scale
     refinement; ``refine_features``: its ORB key points per frame (0: the search's own, 500);
+    ``align_every``: the ORB aligners search and refine every n-th frame, the matches of the
+    frames between interpolated (1: every frame);
     ``preset``: the name of the preset these came from (recorded with each segment).
     """
 
@@ -84,6 +93,7 @@ class IngestOptions:
     tile_columns: int = 1
     refine_radius: int = 2
     refine_features: int = 0
+    align_every: int = 2
     preset: str | None = "realtime"
 
     @classmethod
@@ -107,6 +117,8 @@ class IngestOptions:
             raise EgovidError(f"unknown aligner {self.aligner!r}", f"choose one of {', '.join(ALIGNERS)}")
         if self.refine_features != 0 and not 100 <= self.refine_features <= 5000:
             raise EgovidError(f"{self.refine_features} refinement features is outside 100-5000", "use 0 or 1000")
+        if not 1 <= self.align_every <= 4:
+            raise EgovidError(f"aligning every {self.align_every}th frame is outside 1-4", "use 1 or 2")
         if not 1 <= self.refine_radius <= 10:
             raise EgovidError(f"refinement radius {self.refine_radius} is outside 1-10", "use 2 or 3")
         if self.baseline_align not in BASELINE_ALIGN:

@@ -165,7 +165,14 @@ class _PieceRun:
                 prior = np.interp(self.piece.positions, ref.positions[order], order.astype(float))
                 speed_ref = np.abs(np.gradient(ref.positions.astype(float)) * ref.fps) if m > 1 else np.zeros(m)
                 aligner = StreamingAlignment(
-                    self.opts.aligner, self.refs, prior, self.track.speed[f0:f1], speed_ref, self.stopped, self.fps
+                    self.opts.aligner,
+                    self.refs,
+                    prior,
+                    self.track.speed[f0:f1],
+                    speed_ref,
+                    self.stopped,
+                    self.fps,
+                    self.opts.align_every,
                 )
             held: dict[int, np.ndarray] = {}
             k_out = 0

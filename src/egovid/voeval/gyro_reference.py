@@ -24,8 +24,8 @@ import numpy as np
 
 from egovid.errors import EgovidError
 from egovid.io.camera import Intrinsics
-from egovid.io.video import VideoWriter, iter_frames
-from egovid.voeval.scenes import SceneTruth
+from egovid.io.video import iter_frames
+from egovid.voeval.scenes import SceneTruth, lossless_writer
 
 #: Motion sources whose trajectory is a camera's own sensor (not vision).
 _SENSOR_SOURCES = ("gyro", "camera-orientation")
@@ -65,7 +65,7 @@ def import_gyro_sequence(spec, video: Path, max_frames: int | None = None) -> Sc
     times = np.asarray(traj.times[:n], float) - float(traj.times[0])
     fps = 1.0 / float(np.median(np.diff(times)))
     written = 0
-    with VideoWriter(video, w, h, fps, codec="ffv1") as wr:
+    with lossless_writer(video, w, h, fps) as wr:
         for f in iter_frames(spec.path, max_frames=n):
             wr.write(f.image[:h, :w], float(times[written]))
             written += 1

@@ -76,6 +76,60 @@ def test_visual_errors_distinguish_drift_from_jitter():
     assert rj > rd
 
 
+def test_visual_errors_equal_the_itf_of_each_picture_warped_alone():
+    # Independent path: each picture warped by itself (stabilised_frames) and its ITF taken frame
+    # by frame (metrics.itf), against the grid's batched warps of up to four pictures at once.
+    from egovid.metrics.itf import itf
+    from egovid.metrics.visual_error import stabilised_frames
+
+    intr = Intrinsics.from_hfov(160, 120, 60)
+    names = ("astronaut", "coffee", "rocket", "chelsea", "cat")  # two warp batches (4 + 1)
+    R = _motion(24)
+    rng = np.random.default_rng(2)
+    est = R @ np.stack([matrix_from_euler(*rng.normal(0, 0.5, 3)) for _ in range(len(R))]) @ rot_y(0.1)
+    R, est = R[0].T @ R, est[0].T @ est  # visual_errors takes rotations relative to the first frame
+    order = np.random.default_rng(0).permutation(len(R))
+    o_ref, r_ref = [], []
+    for name in names:
+        frames, masks = stabilised_frames(photo(name), R, est, intr)
+        o_ref.append(itf(frames, masks, cap_db=60.0))
+        r_ref.append(itf(frames, masks, order=order, cap_db=60.0))
+    o, r = visual_errors([photo(n) for n in names], R, est, intr, cap_db=60.0)
+    assert (o, r) == (float(np.mean(o_ref)), float(np.mean(r_ref)))  # bit for bit
+
+
+def test_orbslam_worker_grey_is_what_png_frames_gave():
+    # ORB-SLAM3 used to read each frame from a PNG file as grey; its worker now converts the
+    # decoded frame itself and must give the same pixels.
+    import cv2
+
+    from egovid.voeval.orbslam_worker import grey
+
+    img = np.random.default_rng(3).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    ok, png = cv2.imencode(".png", img)
+    assert ok
+    np.testing.assert_array_equal(grey(img), cv2.imdecode(png, cv2.IMREAD_GRAYSCALE))
+
+
+def _child_env_value(_job) -> str:
+    import subprocess
+
+    code = "import os; print(os.environ.get('MALLOC_TRIM_THRESHOLD_'))"
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+
+
+def test_grid_tasks_undo_the_dask_malloc_setting(monkeypatch):
+    # Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536 (1.8x the CPU time of a cell);
+    # every grid task restores glibc's thresholds and keeps the variable from the odometers it starts.
+    from egovid.voeval.runner import guarded, steady_malloc
+
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
+    assert _child_env_value(None) == "65536"
+    assert guarded((_child_env_value, None)) == "None"
+    if sys.platform.startswith("linux"):
+        assert steady_malloc()
+
+
 def test_orbit_pose_is_eq_21_3():
     r, d, w = 0.25, 1.0, 2 * math.pi / 48
     for t in (0.0, 7.0, 19.0):

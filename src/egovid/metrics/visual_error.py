@@ -19,11 +19,13 @@ are averaged over several pictures.
 
 from __future__ import annotations
 
+import itertools
+
 import cv2
 import numpy as np
 
 from egovid.io.camera import Intrinsics
-from egovid.metrics.itf import ITFAccumulator
+from egovid.metrics.itf import masked_psnr
 
 DEFAULT_CAP_DB = 60.0
 
@@ -51,24 +53,53 @@ def content_masks(R_gt: np.ndarray, R_est: np.ndarray, intr: Intrinsics) -> list
     return [_inside(Hk, w, h) & _inside(Sk, w, h) for Hk, Sk in zip(H, H_stab, strict=True)]
 
 
+def _picture(image: np.ndarray, w: int, h: int) -> np.ndarray:
+    """A picture resized to the w x h frame, grey."""
+    img = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
+
+
 def stabilised_frames(
     image: np.ndarray, R_gt: np.ndarray, R_est: np.ndarray, intr: Intrinsics, masks: list[np.ndarray] | None = None
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Grey stabilised frames and their content masks for one picture (resized to the frame)."""
     w, h = intr.width, intr.height
-    img = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    img = _picture(image, w, h)
     H, _ = _homographies(R_gt, R_est, intr)
     frames = [cv2.warpPerspective(img, Hk, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT) for Hk in H]
     return frames, masks if masks is not None else content_masks(R_gt, R_est, intr)
 
 
-def _itf(frames, masks, order, cap_db) -> float:
-    acc = ITFAccumulator(cap_db)
-    for i in order:
-        acc.add(frames[i], masks[i])
-    return acc.value
+def _stabilised_planes(pictures: list[np.ndarray], H: np.ndarray, w: int, h: int) -> list[tuple[np.ndarray, ...]]:
+    """Per frame, the stabilised frame of every picture (grey planes), up to four pictures warped
+    as the channels of one image: OpenCV interpolates each channel alone, so every plane is
+    bit-identical to warping its picture by itself, at about a third of the cost."""
+    chunks = [pictures[i : i + 4] for i in range(0, len(pictures), 4)]
+    groups = [cv2.merge(c) if len(c) > 1 else c[0] for c in chunks]
+    out = []
+    for Hk in H:
+        planes: list[np.ndarray] = []
+        for g in groups:
+            warped = cv2.warpPerspective(g, Hk, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+            planes.extend(cv2.split(warped) if warped.ndim == 3 else [warped])
+        out.append(tuple(planes))
+    return out
+
+
+def _itfs(frames: list[tuple[np.ndarray, ...]], masks: list[np.ndarray], order, cap_db: float) -> list[float]:
+    """ITF (eq. 21.13, masks of eq. 21.18) of every picture's stabilised frames taken in ``order``;
+    the mask of a frame pair is shared by all pictures. Same values as :class:`ITFAccumulator`."""
+    order = list(order)
+    n_pic = len(frames[0]) if frames else 0
+    sums, counts = [0.0] * n_pic, [0] * n_pic
+    for a, b in itertools.pairwise(order):
+        both = masks[a] & masks[b]
+        for p in range(n_pic):
+            v = masked_psnr(frames[a][p], frames[b][p], both, cap_db)
+            if np.isfinite(v):
+                sums[p] += v
+                counts[p] += 1
+    return [s / c if c else float("nan") for s, c in zip(sums, counts, strict=True)]
 
 
 def visual_errors(
@@ -84,10 +115,10 @@ def visual_errors(
     R_gt = np.swapaxes(R_gt[0], -1, -2) @ R_gt
     R_est = np.swapaxes(R_est[0], -1, -2) @ R_est
     order = np.random.default_rng(seed).permutation(len(R_gt))
-    oitf, ritf = [], []
+    w, h = intr.width, intr.height
     masks = content_masks(R_gt, R_est, intr)  # the same for every picture
-    for img in images:
-        frames, _ = stabilised_frames(img, R_gt, R_est, intr, masks)
-        oitf.append(_itf(frames, masks, range(len(frames)), cap_db))
-        ritf.append(_itf(frames, masks, order, cap_db))
+    H, _ = _homographies(R_gt, R_est, intr)
+    frames = _stabilised_planes([_picture(img, w, h) for img in images], H, w, h)
+    oitf = _itfs(frames, masks, range(len(frames)), cap_db)
+    ritf = _itfs(frames, masks, order, cap_db)
     return float(np.nanmean(oitf)), float(np.nanmean(ritf))

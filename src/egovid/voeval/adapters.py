@@ -225,12 +225,15 @@ class MonoVO(VisualOdometer):
 
 
 class WorkerVO(VisualOdometer):
-    """An odometer run by an egovid worker module in its own process, on frames as PNG files
-    (crash isolation, and no native-library clashes with OpenCV). The worker writes JSON
-    ``{"rotations": {frame: 3x3}}``; :meth:`rotation` turns an entry into camera-to-world.
-    :meth:`frames` chooses the frames the worker sees (default: all)."""
+    """An odometer run by an egovid worker module in its own process (crash isolation, and no
+    native-library clashes with OpenCV), on frames as PNG files or, when :attr:`reads_video`, on
+    the video itself (the worker decodes it: no frame folder written and read back). The worker
+    writes JSON ``{"rotations": {frame: 3x3}}`` (plus ``"frames": N`` when it reads the video);
+    :meth:`rotation` turns an entry into camera-to-world. :meth:`frames` chooses the frames the
+    worker sees as PNG files (default: all)."""
 
     module = ""
+    reads_video = False
 
     def __init__(self, timeout: float = 600.0) -> None:
         self.timeout = timeout
@@ -252,25 +255,35 @@ class WorkerVO(VisualOdometer):
     def run(self, video, intr, workdir) -> VOResult:
         from egovid.io.video import count_frames, probe
 
-        img_dir = workdir / "frames"
-        img_dir.mkdir(parents=True, exist_ok=True)
-        n = count_frames(video)
-        given = self.frames(n)
-        wanted = set(given.tolist())
-        for f in iter_frames(video):
-            if f.index in wanted:
-                cv2.imwrite(str(img_dir / f"{f.index:06d}.png"), f.image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        if self.reads_video:
+            source = video
+        else:
+            source = workdir / "frames"
+            source.mkdir(parents=True, exist_ok=True)
+            n = count_frames(video)
+            wanted = set(self.frames(n).tolist())
+            for f in iter_frames(video):
+                if f.index in wanted:
+                    cv2.imwrite(str(source / f"{f.index:06d}.png"), f.image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
         out = workdir / "worker.json"
-        cmd = [sys.executable, "-m", self.module, str(img_dir), str(out), *self.worker_args(intr, probe(video).fps)]
-        lost = (np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool))
+        cmd = [sys.executable, "-m", self.module, str(source), str(out), *self.worker_args(intr, probe(video).fps)]
+
+        def lost() -> tuple[np.ndarray, np.ndarray]:
+            m = count_frames(video)
+            return np.repeat(np.eye(3)[None], m, 0), np.zeros(m, bool)
+
         try:
             r = subprocess.run(cmd, capture_output=True, text=True, timeout=self.timeout)
         except subprocess.TimeoutExpired:
-            return VOResult(*lost, "timeout")
+            return VOResult(*lost(), "timeout")
         if r.returncode != 0 or not out.exists():
-            return VOResult(*lost, "failed", message=(r.stderr or r.stdout)[-300:])
-        R, valid = lost[0].copy(), lost[1].copy()
-        for key, rot in json.loads(out.read_text())["rotations"].items():
+            return VOResult(*lost(), "failed", message=(r.stderr or r.stdout)[-300:])
+        got = json.loads(out.read_text())
+        if self.reads_video:
+            n = int(got["frames"])
+        given = self.frames(n)
+        R, valid = np.repeat(np.eye(3)[None], n, 0), np.zeros(n, bool)
+        for key, rot in got["rotations"].items():
             k = int(Path(key).stem)
             if k < n:
                 R[k] = self.rotation(np.array(rot))
@@ -321,10 +334,11 @@ class ColmapVO(WorkerVO):
 
 class OrbSlam3VO(WorkerVO):
     """ORB-SLAM3 (monocular) through pyorbslam3, with a vocabulary built locally from bundled
-    photos (:mod:`egovid.voeval.orbvocab`), on every frame."""
+    photos (:mod:`egovid.voeval.orbvocab`), on every frame (the worker decodes the video)."""
 
     name = "orbslam3"
     module = "egovid.voeval.orbslam_worker"
+    reads_video = True
 
     def worker_args(self, intr, fps) -> list[str]:
         from egovid.voeval.orbvocab import build_vocabulary

@@ -25,9 +25,9 @@ import cv2
 import numpy as np
 
 from egovid.geometry import so3_exp, so3_log
-from egovid.io.video import VideoWriter, iter_frames
+from egovid.io.video import iter_frames
 from egovid.synth import effects
-from egovid.voeval.scenes import SceneTruth
+from egovid.voeval.scenes import SceneTruth, lossless_writer
 
 REAL_FACTORS = ("noise", "blur", "illumination")
 #: Which thesis factor each real-frame factor stands for.
@@ -54,12 +54,12 @@ def illumination_gain(t: np.ndarray, phase: float, *, level: float = 0.35, hunt:
 
 
 def degrade_scene(src: Path, truth: SceneTruth, factor: str, seed: int, dst: Path) -> SceneTruth:
-    """Write ``dst`` (FFV1): the frames of ``src`` with one image-level ``factor``; same truth."""
+    """Write ``dst`` (lossless): the frames of ``src`` with one image-level ``factor``; same truth."""
     rng = np.random.default_rng([seed, 7])
     phase = float(rng.uniform(0, 2 * math.pi))
     K = truth.intrinsics.K
     R = truth.R
-    with VideoWriter(dst, truth.intrinsics.width, truth.intrinsics.height, truth.fps, codec="ffv1") as wr:
+    with lossless_writer(dst, truth.intrinsics.width, truth.intrinsics.height, truth.fps) as wr:
         for f in iter_frames(src):
             k = f.index
             img = f.image

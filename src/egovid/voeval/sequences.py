@@ -4,7 +4,7 @@ A sequence is read by :mod:`egovid.voeval.datasets` (or, for ``gyro:``, from a v
 embedded gyro by :mod:`egovid.voeval.gyro_reference`), its frames are matched to the reference
 orientations by timestamp (:func:`match_reference`: spherical interpolation between the two
 reference samples around each frame), and the longest run of matched frames (at most ``--frames``)
-is stored like a synthetic scene: a lossless FFV1 video (undistorted where the dataset has a lens
+is stored like a synthetic scene: a lossless video (undistorted where the dataset has a lens
 distortion, so every odometer sees a pinhole camera), its reference trajectory (TUM) and a JSON
 description (:class:`egovid.voeval.scenes.SceneTruth`).
 """
@@ -21,9 +21,8 @@ import numpy as np
 from egovid.errors import EgovidError
 from egovid.geometry import so3_exp, so3_log
 from egovid.io.camera import Intrinsics
-from egovid.io.video import VideoWriter
 from egovid.voeval.datasets import READERS, RawSequence, check_times
-from egovid.voeval.scenes import SceneTruth
+from egovid.voeval.scenes import SceneTruth, lossless_writer
 
 FORMATS = (*READERS, "gyro")
 FORMAT_HELP = {
@@ -166,7 +165,7 @@ def import_sequence(seq: RawSequence, video: Path, max_frames: int | None = None
         maps = cv2.initUndistortRectifyMap(K, np.array(cam.distortion), None, K, (w0, h0), cv2.CV_16SC2)
     times = seq.image_times[a:b] - seq.image_times[a]
     fps = 1.0 / float(np.median(np.diff(times)))
-    with VideoWriter(video, w, h, fps, codec="ffv1") as wr:
+    with lossless_writer(video, w, h, fps) as wr:
         for k in range(a, b):
             img = first if k == a else _read_image(seq.images[k])
             if img.shape[:2] != (h0, w0):

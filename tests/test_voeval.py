@@ -111,25 +111,6 @@ def test_orbslam_worker_grey_is_what_png_frames_gave():
     np.testing.assert_array_equal(grey(img), cv2.imdecode(png, cv2.IMREAD_GRAYSCALE))
 
 
-def _child_env_value(_job) -> str:
-    import subprocess
-
-    code = "import os; print(os.environ.get('MALLOC_TRIM_THRESHOLD_'))"
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
-
-
-def test_grid_tasks_undo_the_dask_malloc_setting(monkeypatch):
-    # Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536 (1.8x the CPU time of a cell);
-    # every grid task restores glibc's thresholds and keeps the variable from the odometers it starts.
-    from egovid.voeval.runner import guarded, steady_malloc
-
-    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
-    assert _child_env_value(None) == "65536"
-    assert guarded((_child_env_value, None)) == "None"
-    if sys.platform.startswith("linux"):
-        assert steady_malloc()
-
-
 def test_orbit_pose_is_eq_21_3():
     r, d, w = 0.25, 1.0, 2 * math.pi / 48
     for t in (0.0, 7.0, 19.0):

@@ -13,7 +13,10 @@ grid both go through it, so a local run and a cluster run share one code path.
   127.0.0.1 (what ``--scheduler`` talks to on a real cluster), for the tests and benchmarks that
   try the cluster path on one machine.
 
-Dask pitfalls handled here: ``submit`` defaults to ``pure=True`` (identical arguments would run once;
+Dask pitfalls handled here: a ``dask worker`` (its nanny) starts worker processes with
+``MALLOC_TRIM_THRESHOLD_=65536``, which makes glibc return every freed video frame to the operating
+system and fetch it again (an ECC voeval cell: 6x the page faults, 1.8x the CPU time); every task
+undoes that first (:func:`steady_malloc`). ``submit`` defaults to ``pure=True`` (identical arguments would run once;
 we always pass ``pure=False`` and a unique key); a task that *raises* is retried ``retries`` times; a
 task whose worker *dies* (killed, out of memory) is rescheduled by the scheduler on another worker
 (up to ``distributed.scheduler.allowed-failures`` times, then it fails with ``KilledWorker``). So a
@@ -25,6 +28,7 @@ the process, possibly someone else's, already closed.
 from __future__ import annotations
 
 import contextlib
+import functools
 import itertools
 import json
 import os
@@ -192,7 +196,13 @@ def run_tasks(
             out = []
             for key in ready:
                 item = pending.pop(key)
-                fut = client.submit(fn, item, key=f"{name}-{key}-{token}", pure=False, retries=config.retries)
+                fut = client.submit(
+                    functools.partial(_on_worker, fn),
+                    item,
+                    key=f"{name}-{key}-{token}",
+                    pure=False,
+                    retries=config.retries,
+                )
                 futures[fut] = (key, item)
                 out.append(fut)
             return out
@@ -229,6 +239,34 @@ def run_tasks(
             for fut in futures:
                 if not fut.done():
                     fut.cancel()
+
+
+#: glibc mallopt parameters, and the values a task sets (bytes): blocks below 32 MiB come from the
+#: heap and up to 64 MiB of freed heap is kept, glibc's own steady state for programs that allocate
+#: many large frames.
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+_TRIM_BYTES, _MMAP_BYTES = 64 << 20, 32 << 20
+
+
+def steady_malloc() -> bool:
+    """Undo the Dask nanny's ``MALLOC_TRIM_THRESHOLD_=65536`` (its default ``pre-spawn-environ``)
+    in this process and for the processes it starts (odometers, ffmpeg). Returns False where the C
+    library has no ``mallopt`` (not glibc)."""
+    import ctypes
+    import ctypes.util
+
+    os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c"))
+        return bool(libc.mallopt(_M_TRIM_THRESHOLD, _TRIM_BYTES)) and bool(libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_BYTES))
+    except (OSError, AttributeError):
+        return False
+
+
+def _on_worker(fn: Callable[[Any], Any], item: Any) -> Any:
+    """What a Dask worker runs for a task: :func:`steady_malloc`, then ``fn(item)``."""
+    steady_malloc()
+    return fn(item)
 
 
 def _run_here(fn: Callable[[Any], Any], key: str, item: Any, retries: int) -> TaskOutcome:

@@ -181,36 +181,10 @@ def encode_levels(job: EncodeJob) -> list[str]:
     return [str(d) for d in dsts.values()]
 
 
-#: glibc mallopt parameters, and the values a task sets (bytes): blocks below 32 MiB come from the
-#: heap and up to 64 MiB of freed heap is kept, glibc's own steady state for programs that allocate
-#: many large frames.
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-_TRIM_BYTES, _MMAP_BYTES = 64 << 20, 32 << 20
-
-
-def steady_malloc() -> bool:
-    """Undo the Dask nanny's ``MALLOC_TRIM_THRESHOLD_=65536`` (its default ``pre-spawn-environ``)
-    in this process and for the odometer processes it starts. That setting makes glibc hand every
-    freed frame back to the operating system and fetch it again: an ECC cell in a Dask worker took
-    6 times the page faults and 1.8 times the CPU time (user + system 11.5 s against 6.4 s, 300
-    frames at 640x480). Returns False where the C library has no ``mallopt`` (not glibc)."""
-    import ctypes
-    import ctypes.util
-
-    os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)  # for the worker processes of ORB-SLAM3, COLMAP, --vo-cmd
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c"))
-        return bool(libc.mallopt(_M_TRIM_THRESHOLD, _TRIM_BYTES)) and bool(libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_BYTES))
-    except (OSError, AttributeError):
-        return False
-
-
 def guarded(task: tuple[Callable, object]) -> object:
-    """Run ``fn(job)`` of ``task = (fn, job)`` on a worker (with :func:`steady_malloc`); a user
-    error (a bad input found only while working) comes back as the value, so it is reported once,
-    plainly, and not retried."""
+    """Run ``fn(job)`` of ``task = (fn, job)`` on a worker; a user error (a bad input found only
+    while working) comes back as the value, so it is reported once, plainly, and not retried."""
     fn, job = task
-    steady_malloc()
     try:
         return fn(job)
     except EgovidError as exc:

@@ -3,7 +3,8 @@
 Pipeline: decode a downscaled grey copy (in presentation order) → keypoints once per frame →
 pairwise rotations to the frame 1 back and, taking turns, 2 or 5 back (``lags``) → the constant
 bias of the longer pairs removed → SO(3) pose graph with the noise of each edge group
-calibrated from the data → orientations. Only the last ``max(lags)``
+calibrated from the data → orientations, whose frame-to-frame detail (above ``detail_hz``)
+comes from the distance-1 pairs (:func:`steps_detail`). Only the last ``max(lags)``
 frames' features are held in memory, so memory does not grow with video length (apart from one
 3x3 matrix per frame and per edge, and the matched points of the first ``keep_matches`` frames
 when asked for, for a focal-length fit).

@@ -204,3 +204,16 @@ def test_writer_converts_bgr_with_the_tagged_matrix_and_range(tmp_path, colour, 
     # By hand: limited range Y = 16 + 219 * v / 255, full range Y = v (grey has no chroma).
     assert np.all(y[:, :30] == grey_y) and np.all(y[:, 34:] == white_y)
     assert probe(out).colour.range == colour.range
+
+
+@pytest.mark.parametrize("suffix", [".mkv", ".mp4"])
+def test_x264_with_frame_delay_keeps_even_frame_times_in_any_container(tmp_path, suffix):
+    """libx264 (default tune) holds frames back; Matroska switches the stream's time base to 1/1000
+    when it writes its header at the first packet. Frame times must still be i / fps."""
+    out = tmp_path / f"d{suffix}"
+    opts = {"qp": "0", "preset": "ultrafast"}  # one thread: a delay of a frame or two
+    with VideoWriter(out, 64, 48, 20, codec="libx264", crf=None, preset=None, options=opts, threads=1) as w:
+        for i in range(12):
+            w.write(_pattern(i))
+    _, times = read_frames(out)
+    assert np.allclose(times - times[0], np.arange(12) / 20, atol=1e-3), times

@@ -730,8 +730,12 @@ class VideoWriter:
         if self.rotation:
             self._stream.set_display_rotation(self.rotation)
         # A fine time base keeps variable frame timing exactly (1/rate would round it).
-        self._stream.time_base = Fraction(1, 90000)
-        self._stream.codec_context.time_base = Fraction(1, 90000)
+        # Frames are stamped in this time base, kept here: a muxer may change the *stream's* time base
+        # when it writes the header at the first packet (Matroska: 1/1000), after an encoder with a
+        # frame delay has already taken frames (libx264 in .mkv came out at t = 0, 0.05, 4.501, ...).
+        self._tb = Fraction(1, 90000)
+        self._stream.time_base = self._tb
+        self._stream.codec_context.time_base = self._tb
         opts: dict[str, str] = {}
         if crf is not None and codec in ("libx264", "libx265", "libvpx-vp9", "libvpx"):
             opts["crf"] = str(crf)
@@ -800,13 +804,13 @@ class VideoWriter:
     def _next_pts(self, time: float | None) -> tuple[int, float]:
         if time is None:
             time = self._count / self.fps
-        pts = max(round(time / self._stream.time_base), self._last_pts + 1)
+        pts = max(round(time / self._tb), self._last_pts + 1)
         self._last_pts = pts
         return pts, time
 
     def _encode(self, frame: av.VideoFrame, pts: int, time: float) -> None:
         frame.pts = pts
-        frame.time_base = self._stream.time_base
+        frame.time_base = self._tb
         if self._i420:
             self.colour.apply(frame)
         for packet in self._stream.encode(frame):

@@ -21,8 +21,8 @@ not measured takes the mean of that odometer's measured cells of the same scene 
 pano); each scene's render takes its measured time (``prepare_seconds`` in the scene's JSON; a
 scene not rendered, the slowest of its family); each scene's ladder task the sample's per-scene
 ladder time scaled by 6 / rungs sampled (CPU of a 6-rung task over a 2-rung one, measured: 2.9 to
-3.1); all of it packed on the two workers, plus the longest cell once for the tail. Writes the report (bench-output/voeval[-cluster]/report.html, report.md,
-matrices.json).
+3.1); all of it packed on the two workers, plus the longest cell once for the tail. Writes the
+report (bench-output/voeval[-cluster]/report.html, report.md, matrices.json).
 
 Measured on this 2-core machine, shared: run the sample with /work/coord/bin/timed (both cores).
 """

@@ -57,13 +57,15 @@ def main() -> None:
     old = estimate_motion(
         CLIP,
         Intrinsics.from_focal(info.width, info.height, 830.0 * info.width / 1920),
-        MotionOptions(lags=(1, 5), calibrate=False),
+        MotionOptions(lags=(1, 5), calibrate=False, detail_hz=None),
     )
     t_old = time.perf_counter() - t
     t = time.perf_counter()
     # The thesis' graph (stated noise, no bias removal) at the camera's own focal length, to
     # separate the intrinsics from the graph.
-    thesis_graph = estimate_motion(CLIP, vision.camera.intrinsics, MotionOptions(lags=(1, 5), calibrate=False))
+    thesis_graph = estimate_motion(
+        CLIP, vision.camera.intrinsics, MotionOptions(lags=(1, 5), calibrate=False, detail_hz=None)
+    )
     t_thesis = time.perf_counter() - t
     t = time.perf_counter()
     fused = camera_motion(CLIP, "fused")

@@ -6,7 +6,7 @@ import pytest
 
 from egovid.geometry import angle_deg, euler_from_matrix, matrix_from_euler, so3_exp
 from egovid.io.trajectory import Trajectory, read_motion_csv
-from egovid.motion.estimate import estimate_motion
+from egovid.motion.estimate import estimate_motion, steps_detail
 from egovid.motion.pairwise import relative_rotation
 from egovid.motion.posegraph import Edge, chain, optimize
 from egovid.synth import motions
@@ -126,3 +126,21 @@ def test_issue_accuracy_720p_300_frames(tmp_path):
     err_chain = angle_deg(np.swapaxes(est.chained, 1, 2) @ gt.R)
     assert np.sqrt(np.mean(err_graph**2)) < np.sqrt(np.mean(err_chain**2))
     assert euler_from_matrix(est.trajectory.R[-1]).shape == (3,)
+
+
+def test_steps_detail_takes_frame_steps_above_the_cutoff_and_the_graph_below():
+    """Complementary filter: a graph with a 2-frame periodic error (the alternation of the longer
+    pairs) and frame steps that drift 0.01°/frame; the result has neither."""
+    rng = np.random.default_rng(3)
+    n = 300
+    a = motions.running(n, 10, 2.5, 24, 1.5)
+    R = matrix_from_euler(a[:, 0], a[:, 1], a[:, 2])
+    R = R[0].T @ R
+    graph = np.array([r @ so3_exp(np.radians([0.05, -0.04, 0.0]) * (-1) ** k) for k, r in enumerate(R)])
+    drift = so3_exp(np.radians([0.01, 0.0, 0.005]))
+    steps = [R[k].T @ R[k + 1] @ drift @ so3_exp(rng.normal(0, np.radians(0.001), 3)) for k in range(n - 1)]
+    out = steps_detail(graph, steps, np.arange(n) / 30.0)
+    rms = lambda X: float(np.sqrt(np.mean(angle_deg(np.swapaxes(X, 1, 2) @ R) ** 2)))  # noqa: E731
+    chained = chain(n, [Edge(k, k + 1, Q) for k, Q in enumerate(steps)])
+    assert rms(graph) > 0.06 and rms(chained) > 1.0
+    assert rms(out) < 0.15 * rms(graph), (rms(out), rms(graph))

@@ -73,15 +73,15 @@ def kabsch(b_from: np.ndarray, b_to: np.ndarray, weights: np.ndarray | None = No
     return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
 
 
-def rotation_zoom(xi: np.ndarray, xj: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, float]:
+def rotation_zoom(xi: np.ndarray, xj: np.ndarray, iterations: int = 4, zoom: float = 1.0) -> tuple[np.ndarray, float]:
     """Rotation Q and zoom s with ``x_i ∝ diag(s, s, 1) Q x_j`` (normalised image points, (N, 3)).
 
     A camera moving along its optical axis in front of a distant, roughly equidistant scene sees a
     zoom about the principal point; left in the residuals it biases a pure-rotation fit towards
     the side with more features. Solved by alternation: Kabsch on de-zoomed bearings, then the
-    least-squares zoom in closed form.
+    least-squares zoom in closed form, starting from ``zoom``.
     """
-    s = 1.0
+    s = zoom
     Q = np.eye(3)
     for _ in range(iterations):
         xi_ = xi.copy()
@@ -303,14 +303,15 @@ def rotation_from_correspondences(
     if inl.sum() < MIN_INLIERS:
         return _failed(int(inl.sum()), n)
     zoom = 1.0
-    for _ in range(3):
-        Q, zoom = rotation_zoom(xi[inl], xj[inl])
+    for it in range(3):
+        # Later rounds start from the previous zoom (it changes little once outliers are out).
+        Q, zoom = rotation_zoom(xi[inl], xj[inl], 4 if it == 0 else 2, zoom)
         r = rotation_residuals(Q, pj, pi, K, zoom)
         sigma = max(0.02, 1.4826 * float(np.median(r[inl])) / 1.1774)  # per-axis noise, robust
         inl = r < min(threshold_px, max(4.0 * sigma, 0.1))
         if inl.sum() < MIN_INLIERS:
             return _failed(int(inl.sum()), n)
-    Q, zoom = rotation_zoom(xi[inl], xj[inl])
+    Q, zoom = rotation_zoom(xi[inl], xj[inl], 2, zoom)
     r = rotation_residuals(Q, pj, pi, K, zoom)
     n_rot = int(inl.sum())
     res_rot = float(np.sqrt(np.mean(r[inl] ** 2) / 2.0))

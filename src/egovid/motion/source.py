@@ -216,7 +216,7 @@ def camera_motion(
     vopts = MotionOptions(**{**opts.__dict__, "keep_matches": keep, "max_frames": window})
     pairs = collect_pairs(video, camera.intrinsics, vopts, report("motion"))
     seconds["vision_pairs"] = pairs.seconds
-    vision = solve_motion(pairs, camera.intrinsics, calibrate=vopts.calibrate)
+    vision = solve_motion(pairs, camera.intrinsics, calibrate=vopts.calibrate, detail_hz=vopts.detail_hz)
 
     sync = fit = comparison = None
     gyro_track = track
@@ -257,7 +257,7 @@ def camera_motion(
             else:
                 pairs = None
                 break
-            vision = solve_motion(pairs, camera.intrinsics, calibrate=vopts.calibrate)
+            vision = solve_motion(pairs, camera.intrinsics, calibrate=vopts.calibrate, detail_hz=vopts.detail_hz)
             sync = _sync(gyro_track, vision, chosen == "camera-orientation")
             if chosen != "camera-orientation":
                 track = gyro_mod.integrate(telemetry.imu, bias=sync.bias)
@@ -277,7 +277,9 @@ def camera_motion(
         bridge = None
         if track is not None and sync is not None and np.any(vision.confidence < CONF_MEASURED):
             bridge = gyro_mod.frame_rotations(track, sync, vision.trajectory.times)
-            vision = solve_motion(pairs, camera.intrinsics, bridge=bridge, calibrate=vopts.calibrate)
+            vision = solve_motion(
+                pairs, camera.intrinsics, bridge=bridge, calibrate=vopts.calibrate, detail_hz=vopts.detail_hz
+            )
         traj, conf = vision.trajectory, vision.confidence
     elif chosen == "fused":
         times = vision.trajectory.times

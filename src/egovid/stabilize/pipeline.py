@@ -19,9 +19,12 @@ measured video.
 
 from __future__ import annotations
 
+import contextlib
+import multiprocessing
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -95,6 +98,20 @@ class StabilizeResult:
         return out
 
 
+@contextlib.contextmanager
+def _side_process() -> Iterator[ProcessPoolExecutor | None]:
+    """One forked worker process; None where the platform cannot fork or this process may not
+    have children (a daemonic process: Dask workers, multiprocessing pool workers)."""
+    if "fork" not in multiprocessing.get_all_start_methods() or multiprocessing.current_process().daemon:
+        yield None
+        return
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
 def plan_motion(
     angles: np.ndarray,
     fps: float,
@@ -122,13 +139,28 @@ def plan_motion(
     if not keep_roll:
         edited30[:, 2] = np.median(angles[:, 2])
     plans: dict[str, AxisPlan] = {}
-    for step, name in enumerate(axes):
-        col = AXES.index(name)
-        # Roll's intervals are shifted by the yaw and pitch the viewer will see (eq. 8.2-8.3).
-        plans[name] = optimize_axis(a30[:, col], name, intr.hfov_deg, intr.vfov_deg, model, opts, context=edited30)
-        edited30[:, col] = plans[name].edited
-        if progress is not None:
-            progress(step + 1, len(axes))
+    # Yaw and pitch are planned independently (each axis's windows see only its own angle), so
+    # pitch runs in a forked process while yaw runs here: the optimiser is single-threaded
+    # Python and the second core would idle. Roll waits for both (its intervals move with them).
+    with _side_process() as side:
+        pending = {}
+        if side is not None and "pitch" in axes:
+            col = AXES.index("pitch")
+            pending["pitch"] = side.submit(
+                optimize_axis, a30[:, col], "pitch", intr.hfov_deg, intr.vfov_deg, model, opts, context=edited30
+            )
+        for step, name in enumerate(axes):
+            col = AXES.index(name)
+            if name in pending:
+                plans[name] = pending[name].result()
+            else:
+                # Roll's intervals are shifted by the yaw and pitch the viewer will see (eq. 8.2-8.3).
+                plans[name] = optimize_axis(
+                    a30[:, col], name, intr.hfov_deg, intr.vfov_deg, model, opts, context=edited30
+                )
+            edited30[:, col] = plans[name].edited
+            if progress is not None:
+                progress(step + 1, len(axes))
     edited = from_model_rate(edited30, fps, len(angles), times)
     edited = angles + strength * (edited - angles)
     return edited, plans

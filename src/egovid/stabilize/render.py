@@ -22,9 +22,11 @@ succeeded.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -70,6 +72,24 @@ def content_masks(H: np.ndarray, keep: np.ndarray, width: int, height: int) -> C
         return cv2.warpPerspective(ones, Hz[k], (width, height), flags=cv2.INTER_NEAREST) > 127
 
     return mask
+
+
+def covered_share(H: np.ndarray, width: int, height: int, masks: Callable[[int], np.ndarray], k: int) -> float:
+    """Share (0-1) of a width x height output frame that frame k's content covers after the
+    pixel map ``H`` (3x3): the area of the mapped frame rectangle inside the output, from the
+    geometry (exact, no pixel warp); ``masks(k)`` counts pixels where the map folds the frame
+    behind the camera."""
+    corners = np.array(
+        [[-0.5, -0.5, 1], [width - 0.5, -0.5, 1], [width - 0.5, height - 0.5, 1], [-0.5, height - 0.5, 1]]
+    )
+    q = corners @ H.T
+    if np.any(q[:, 2] <= 1e-9):
+        m = masks(k)
+        return float(np.count_nonzero(m) / m.size)
+    quad = (q[:, :2] / q[:, 2:3]).astype(np.float32)
+    rect = corners[:, :2].astype(np.float32)
+    area, _ = cv2.intersectConvexConvex(quad, rect)
+    return float(min(1.0, max(0.0, area / (width * height))))
 
 
 @dataclass
@@ -133,36 +153,63 @@ def render_stabilized(
     t0 = time.perf_counter()
     n = 0
     Zi = zoom_about_centre(keep, w, h)
-    with VideoWriter(dst, w, h, info.fps, crf=crf, preset=preset, keep_from=src) as writer:
-        for frame in iter_frames(src, i420=True):
-            k = frame.index
-            if k >= len(H):
+    # Three stages overlap on threads (PyAV decodes and encodes, OpenCV warps, all without the
+    # GIL): the next frame decodes and the previous one encodes while this one is warped. One
+    # job in flight per stage keeps the order and bounds memory to a few frames.
+    frames = iter_frames(src, i420=True)
+    stages = ThreadPoolExecutor(max_workers=2, thread_name_prefix="render")
+    decoding = stages.submit(next, frames, None)
+    encoding: Future | None = None
+    try:
+        with VideoWriter(dst, w, h, info.fps, crf=crf, preset=preset, keep_from=src) as writer:
+            try:
+                while (frame := decoding.result()) is not None:
+                    decoding = stages.submit(next, frames, None)
+                    k = frame.index
+                    if k >= len(H):
+                        raise EgovidError(
+                            f"{src} has more frames than its motion ({len(H)})", "re-estimate the motion of this video"
+                        )
+                    out = _warp_i420(frame.image, H[k], w, h, black, mode)
+                    if borders == "fill" and prev_out is not None and R_new is not None and intrinsics is not None:
+                        mask = masks(k)
+                        Hp = (
+                            Zi[k]
+                            @ homographies(R_new[k - 1 : k], R_new[k : k + 1], intrinsics)[0]
+                            @ np.linalg.inv(Zi[k - 1])
+                        )
+                        prev = _warp_i420(prev_out, Hp, w, h, black, cv2.BORDER_CONSTANT)
+                        prev_ok = cv2.warpPerspective(ones, Hp, (w, h), flags=cv2.INTER_NEAREST) > 127
+                        use = prev_ok & ~mask
+                        out[:h][use] = prev[:h][use]
+                        cu = use[::2, ::2]
+                        for p in range(2):
+                            plane = out[h:].reshape(2, h // 2, w // 2)[p]
+                            plane[cu] = prev[h:].reshape(2, h // 2, w // 2)[p][cu]
+                    if borders != "crop":
+                        black_sum += 1.0 - covered_share(H[k], w, h, masks, k)
+                    if encoding is not None:
+                        encoding.result()
+                    encoding = stages.submit(writer.write_i420, out, frame.time)
+                    prev_out = out
+                    n += 1
+                    if progress is not None:
+                        progress(n, info.frame_count)
+                if encoding is not None:
+                    encoding.result()
+            finally:
+                # Nothing may touch the writer or the decoder once this block is left.
+                for job in (encoding, decoding):
+                    if job is not None:
+                        with contextlib.suppress(BaseException):
+                            job.result()
+            if n != len(H):
                 raise EgovidError(
-                    f"{src} has more frames than its motion ({len(H)})", "re-estimate the motion of this video"
+                    f"{src} decoded {n} frames but its motion has {len(H)}", "re-estimate the motion of this video"
                 )
-            out = _warp_i420(frame.image, H[k], w, h, black, mode)
-            mask = None if borders == "crop" else masks(k)
-            if borders == "fill" and prev_out is not None and R_new is not None and intrinsics is not None:
-                Hp = Zi[k] @ homographies(R_new[k - 1 : k], R_new[k : k + 1], intrinsics)[0] @ np.linalg.inv(Zi[k - 1])
-                prev = _warp_i420(prev_out, Hp, w, h, black, cv2.BORDER_CONSTANT)
-                prev_ok = cv2.warpPerspective(ones, Hp, (w, h), flags=cv2.INTER_NEAREST) > 127
-                use = prev_ok & ~mask
-                out[:h][use] = prev[:h][use]
-                cu = use[::2, ::2]
-                for p in range(2):
-                    plane = out[h:].reshape(2, h // 2, w // 2)[p]
-                    plane[cu] = prev[h:].reshape(2, h // 2, w // 2)[p][cu]
-            writer.write_i420(out, frame.time)
-            if mask is not None:
-                black_sum += 1.0 - np.count_nonzero(mask) / mask.size
-            prev_out = out
-            n += 1
-            if progress is not None:
-                progress(n, info.frame_count)
-        if n != len(H):
-            raise EgovidError(
-                f"{src} decoded {n} frames but its motion has {len(H)}", "re-estimate the motion of this video"
-            )
+    finally:
+        stages.shutdown(wait=True)
+        frames.close()
     zoom = 1.0 / keep
     return RenderStats(
         n,

@@ -18,9 +18,11 @@ cells). Prints the total time, seconds per cell by odometer (mean, max; whole ce
 pose error, OITF and RITF) and by stage, the cell statuses, and an extrapolation of the *full*
 default grid from the sample (``full_grid_estimate``): every (odometer, scene family, level) cell
 not measured takes the mean of that odometer's measured cells of the same scene family (orbit or
-pano), and the renders, ladder encodes and cells are packed on the two workers, plus the longest
-cell once for the tail. Writes the report (bench-output/voeval[-cluster]/report.html, report.md,
-matrices.json).
+pano); each scene's render takes its measured time (``prepare_seconds`` in the scene's JSON; a
+scene not rendered, the slowest of its family); each scene's ladder task the sample's per-scene
+ladder time scaled by 6 / rungs sampled (CPU of a 6-rung task over a 2-rung one, measured: 2.9 to
+3.1); all of it packed on the two workers, plus the longest cell once for the tail. Writes the
+report (bench-output/voeval[-cluster]/report.html, report.md, matrices.json).
 
 Measured on this 2-core machine, shared: run the sample with /work/coord/bin/timed (both cores).
 """

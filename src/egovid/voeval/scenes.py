@@ -126,9 +126,8 @@ def lossless_writer(path: Path, width: int, height: int, fps: float) -> VideoWri
     frames the odometers ask FFmpeg for, are identical pixel for pixel (checked on the 640x480
     scenes), and the files are as large; but it encodes about 4 times and decodes about 3 times
     faster than FFV1's RGB mode, and every cell at the lossless level and every ladder task
-    decodes one. ``zerolatency`` makes x264 return each frame's packet at once, as FFV1 does
-    (with a frame delay, the Matroska muxer's time base changed under the writer's second frame
-    and broke the frame times)."""
+    decodes one. ``zerolatency``: no frame delay (each frame's packet comes out at once, as with
+    FFV1)."""
     opts = {"qp": "0", "preset": "ultrafast", "tune": "zerolatency"}
     return VideoWriter(
         path, width, height, fps, codec="libx264rgb", pix_fmt="bgr24", crf=None, preset=None, options=opts, threads=1

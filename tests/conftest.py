@@ -138,6 +138,45 @@ def _wait_for(predicate, what: str, timeout: float) -> None:
         time.sleep(0.2)
 
 
+def wait_until_running(proc: subprocess.Popen, ready, what: str, timeout: float = 300) -> None:
+    """Wait until ``ready()`` (e.g. a temporary output file exists) while the CLI process ``proc``
+    runs; fail loudly if ``proc`` ends first or ``timeout`` seconds pass, killing ``proc``."""
+
+    def check() -> bool:
+        if proc.poll() is not None:
+            pytest.fail(f"the command ended (rc {proc.returncode}) before {what}")
+        return ready()
+
+    try:
+        _wait_for(check, what, timeout)
+    except BaseException:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        raise
+
+
+def partial_output_in(folder: Path):
+    """A ``ready`` test for :func:`wait_until_running`: a temporary output (``.part-``) in ``folder``."""
+    return lambda: any(".part-" in p.name for p in folder.iterdir())
+
+
+def assert_interrupted(proc: subprocess.Popen, sig: int, code: int) -> str:
+    """Send ``sig`` to the running CLI ``proc`` (started with text pipes) and assert a clean stop:
+    exit ``code``, the "interrupted: no partial output was kept" line and no traceback. A process
+    still running after 120 s fails the test and is killed. Returns its standard error."""
+    try:
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == code, err
+    assert "interrupted: no partial output was kept" in err and "Traceback" not in err
+    return err
+
+
 def _spawn(args: list[str], log: Path, env: dict) -> subprocess.Popen:
     """Start a server process in its own session, its output going to ``log``; its process group
     is killed if this pytest process dies without tearing it down (_stop_if_we_die)."""

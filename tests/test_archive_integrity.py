@@ -312,7 +312,7 @@ def test_sigterm_mid_ingest_leaves_the_archive_as_it_was(built, tmp_path):
     import subprocess
     import sys
 
-    from conftest import _wait_for, cli_env
+    from conftest import assert_interrupted, cli_env, wait_until_running
 
     root = tmp_path / "arc"
     shutil.copytree(built, root)
@@ -329,21 +329,12 @@ def test_sigterm_mid_ingest_leaves_the_archive_as_it_was(built, tmp_path):
         stderr=subprocess.PIPE,
         text=True,
     )
-    try:
 
-        def first_blob_stored() -> bool:
-            if proc.poll() is not None:
-                pytest.fail(f"the ingest ended before it was interrupted: {proc.communicate()}")
-            return bool({f for f in files(root) if f.startswith("blobs/") and "/." not in f} - blobs_before)
+    def first_blob_stored() -> bool:
+        return bool({f for f in files(root) if f.startswith("blobs/") and "/." not in f} - blobs_before)
 
-        _wait_for(first_blob_stored, "the ingest to store its first bitstream", 300)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 143, err
-    assert "interrupted: no partial output was kept" in err and "Traceback" not in err
+    wait_until_running(proc, first_blob_stored, "the ingest stored its first bitstream")
+    assert_interrupted(proc, signal.SIGTERM, 143)
     after = files(root)
     assert not [f for f in after if ".part-" in f], after
     for name in ("egovid-archive.json", "catalogue.sqlite", "catalogue.sqlite.backup"):

@@ -23,7 +23,7 @@ from egovid.io.files import atomic_write_text, output_transaction
 from egovid.io.video import count_frames, iter_frames, probe
 from egovid.synth.fpv import render_fpv
 
-from conftest import _wait_for, assert_one_error, cli_env, run_cli
+from conftest import assert_interrupted, assert_one_error, cli_env, partial_output_in, run_cli, wait_until_running
 
 
 def _listing(folder: Path) -> list[str]:
@@ -150,15 +150,6 @@ def test_output_transaction_restores_what_it_replaced(tmp_path):
     assert _listing(tmp_path) == ["old.csv"] and (tmp_path / "old.csv").read_text() == "kept\n"
 
 
-def _wait_for_part(folder: Path, proc: subprocess.Popen) -> None:
-    def started() -> bool:
-        if proc.poll() is not None:
-            pytest.fail(f"the command ended before it was interrupted: {proc.communicate()}")
-        return any(".part-" in p.name for p in folder.iterdir())
-
-    _wait_for(started, "the command to start writing its output", 300)
-
-
 @pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)], ids=["SIGTERM", "SIGINT"])
 def test_signal_mid_write_removes_partial_output(tmp_path, sig, code):
     proc = subprocess.Popen(
@@ -169,16 +160,9 @@ def test_signal_mid_write_removes_partial_output(tmp_path, sig, code):
         stderr=subprocess.PIPE,
         text=True,
     )
-    try:
-        _wait_for_part(tmp_path, proc)
-        time.sleep(0.3)  # some frames into the file
-        proc.send_signal(sig)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == code, err
-    assert "interrupted: no partial output was kept" in err and "Traceback" not in err
+    wait_until_running(proc, partial_output_in(tmp_path), "it started writing its output")
+    time.sleep(0.3)  # some frames into the file
+    assert_interrupted(proc, sig, code)
     assert _listing(tmp_path) == []
 
 

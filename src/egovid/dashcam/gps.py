@@ -157,7 +157,6 @@ def read_gpx(path: Path) -> GpsTrack:
 
 
 def read_nmea(path: Path) -> GpsTrack:
-
     fixes: dict[float, list] = {}
     dropped = {"checksum": 0, "void or estimated": 0, "unparsable": 0}
     day: dt.date | None = None

@@ -194,7 +194,6 @@ def fixes_from_nmea_samples(samples: Iterable[tuple[float, str]], source: str = 
     text track holds them. RMC sentences give date, time, position, speed and course (status A
     only, not dead-reckoned); GGA sentences (fix quality 1-5) add positions at RMC's date. Sentences
     with a bad checksum are dropped and counted. A fix's video time is its sample's."""
-
     dropped = {"checksum": 0, "no fix": 0, "unparsable": 0}
     rmc: dict[float, tuple] = {}
     gga: list[tuple] = []

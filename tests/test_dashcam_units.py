@@ -291,6 +291,77 @@ def test_a_run_started_from_the_baseline_is_cheaper_than_a_keyframe():
         assert joint.bytes_per_frame[k] < 0.5 * plain.bytes_per_frame[k]
 
 
+def test_the_verifying_decoder_follows_the_chosen_runs_and_catches_a_wrong_picture_there(monkeypatch):
+    """``verify_runs`` picks the random-access runs the decoder follows: it decodes exactly their
+    packets (each run begins with a keyframe, so skipping the others is safe), a picture it gets
+    wrong in a followed run stops the encode, one in a skipped run is never looked at; the
+    per-run digests come from the encoder's pictures either way."""
+    rng = np.random.default_rng(3)
+    w, h, n, refresh = 64, 48, 20, 4  # 5 runs
+    _ref, base = _i420(rng, w, h)
+    frames = [_i420(rng, w, h, base, k % 6)[0] for k in range(n)]
+    settings = vpx.EncoderSettings(q=30, speed=6, gop=2, refresh=refresh)
+    plan = codec.coding_plan(n, 2, refresh, [codec.START_KEY] * 5)
+    real = vpx.VP9Decoder.decode
+    decoded: list[int] = []
+    spoil: set[int] = set()
+
+    def counting(self, packet, golden=None, last=None):
+        decoded.append(len(packet))
+        return real(self, packet, golden, last)
+
+    vpx.self_test()  # its own decodes, once per process
+    monkeypatch.setattr(vpx.VP9Decoder, "decode", counting)
+    full = codec.encode_segment(iter(frames), w, h, settings, verify=True)
+    assert len(decoded) == len(plan)
+    decoded.clear()
+    some = codec.encode_segment(iter(frames), w, h, settings, verify=True, verify_runs=lambda i: i in (0, 3))
+    assert len(decoded) == 2 * refresh  # runs 0 and 3, four packets each
+    assert some.blob == full.blob and some.run_digests == full.run_digests and len(full.run_digests) == 5
+
+    packet_frame = {}
+
+    def wrong(self, packet, golden=None, last=None):
+        out = real(self, packet, golden, last)
+        k = packet_frame[id(self)] = packet_frame.get(id(self), -1) + 1
+        if k in spoil:
+            out = out.copy()
+            out[0, 0] ^= 1
+        return out
+
+    monkeypatch.setattr(vpx.VP9Decoder, "decode", wrong)
+    # The decoder's k-th packet: with runs 0 and 3 followed, packets 0-3 are run 0, 4-7 run 3.
+    spoil.add(5)
+    with pytest.raises(EgovidError, match="does not reproduce"):
+        codec.encode_segment(iter(frames), w, h, settings, verify=True, verify_runs=lambda i: i in (0, 3))
+    packet_frame.clear()
+    spoil.clear()
+    spoil.add(9)  # would be run 2's second packet were it followed
+    codec.encode_segment(iter(frames), w, h, settings, verify=True, verify_runs=lambda i: i in (0, 3))
+    packet_frame.clear()
+    with pytest.raises(EgovidError, match="does not reproduce"):
+        codec.encode_segment(iter(frames), w, h, settings, verify=True)
+
+
+def test_verified_runs_are_the_first_the_last_and_a_seeded_share_of_the_rest():
+    from egovid.dashcam.ingest.options import IngestOptions
+
+    n = 400
+    picks = IngestOptions.from_preset("realtime").verified_runs(n, seed=7)
+    chosen = [i for i in range(n) if picks(i)]
+    again = IngestOptions.from_preset("realtime").verified_runs(n, seed=7)
+    assert chosen == [i for i in range(n) if again(i)]
+    assert chosen[0] == 0 and chosen[-1] == n - 1
+    assert 0.18 < (len(chosen) - 2) / (n - 2) < 0.32  # the realtime preset's quarter
+    other = IngestOptions.from_preset("realtime").verified_runs(n, seed=8)
+    assert chosen != [i for i in range(n) if other(i)]
+    for preset in ("balanced", "archive"):
+        every = IngestOptions.from_preset(preset).verified_runs(n, seed=7)
+        assert all(every(i) for i in range(n))
+    with pytest.raises(EgovidError, match="outside"):
+        IngestOptions(verify_share=0.0).check()
+
+
 @pytest.mark.parametrize(("gop", "refresh"), [(1, 0), (2, 0), (3, 0), (8, 0), (1, 4), (3, 7), (8, 8), (8, 32)])
 @pytest.mark.parametrize("n", [1, 2, 3, 9, 10, 17, 30, 70])
 def test_coding_plan_codes_every_frame_once_after_its_references(n, gop, refresh):

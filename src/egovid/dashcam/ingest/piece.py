@@ -301,7 +301,27 @@ def encode_piece(
         helper.start()
     with tempfile.TemporaryFile(prefix="egovid-segment-") as spool:
         try:
-            enc = _encode_from(pipes[0], clock, "encode", w, h, settings, progress=cb, verify=opts.verify, spool=spool)
+            picks = opts.verified_runs(len(codec.substreams(run.n, settings.refresh)), piece.frames[0])
+            followed: list[int] = []
+
+            def verified(i: int) -> bool:
+                if picks(i):
+                    followed.append(i)
+                    return True
+                return False
+
+            enc = _encode_from(
+                pipes[0],
+                clock,
+                "encode",
+                w,
+                h,
+                settings,
+                progress=cb,
+                verify=opts.verify,
+                verify_runs=verified,
+                spool=spool,
+            )
         finally:
             for p in pipes:
                 p.stop.set()
@@ -329,6 +349,7 @@ def encode_piece(
         "run_digests": enc.run_digests,
         "run_offsets": enc.run_offsets,
         "psnr_y": enc.psnr_y,
+        "verified_runs": followed if opts.verify else [],  # runs the verifying decoder followed
         "aligner": opts.aligner,
         "standalone_bytes": standalone_bytes,
         "standalone_psnr_y": alone["seg"].psnr_y if "seg" in alone else None,

@@ -132,6 +132,39 @@ def test_aligning_every_second_frame_searches_half_the_frames_and_keeps_the_matc
     assert len(searched[1]) == len(new)
 
 
+def test_a_coarse_wide_search_finds_the_full_searchs_match_scoring_a_third_of_the_candidates(sequences):
+    """The first frame is searched 1.5 s either side of its GPS prior; with ``coarse`` = 3 every
+    3rd reference frame is scored, then the neighbours of the best: the same match, a third of the
+    work (the frames after it search the same short range either way)."""
+    from egovid.dashcam.align import OrbSearch
+
+    ref, new, stopped, prior = sequences
+    sc = OrbScorer()
+    ref_feats = [sc.features(g) for g in ref]
+    new_feats = [sc.features(g) for g in new[:6]]
+    got = {}
+    for coarse in (1, 3):
+        asked: list[int] = []
+        search = OrbSearch(
+            lambda j, asked=asked: asked.append(j) or ref_feats[j],
+            len(ref),
+            prior,
+            np.where(stopped, 0.0, 8.0),
+            np.full(len(ref), 10.0),
+            stopped,
+            30.0,
+            OrbScorer(),
+            coarse,
+        )
+        first = search.step(0, new_feats[0])
+        n_first = len(asked)
+        got[coarse] = (first, [search.step(k, new_feats[k]) for k in range(1, 6)], n_first, len(asked) - n_first)
+    assert got[3][0] == got[1][0] and got[3][0][1] >= 12  # the same match, found by its inliers
+    assert got[3][1] == got[1][1]
+    assert got[1][2] >= 40 and got[3][2] <= got[1][2] // 3 + 5
+    assert got[3][3] == got[1][3]
+
+
 def test_the_default_options_are_the_default_preset_and_options_override_presets():
     from egovid.dashcam.ingest.options import DEFAULT_PRESET, PRESETS, IngestOptions
     from egovid.errors import EgovidError

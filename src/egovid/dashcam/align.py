@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -103,6 +104,22 @@ def cross_check_matches(desc_a: np.ndarray, desc_b: np.ndarray) -> tuple[np.ndar
     a = np.ascontiguousarray(desc_a).view(np.uint64)
     b = np.ascontiguousarray(desc_b).view(np.uint64)
     return _cross_check(a, b)
+
+
+_WARM = threading.Lock()
+_warmed: list[threading.Thread] = []
+
+
+def warm_up() -> None:
+    """Load the compiled matcher in a background thread (once per process): numba's first call
+    takes about 0.4-0.6 s even from its on-disk cache, and would otherwise land in the first frame's
+    search, while the encoder waits for its first baseline."""
+    with _WARM:
+        if not _warmed:
+            z = np.zeros((8, 32), np.uint8)
+            t = threading.Thread(target=cross_check_matches, args=(z, z), name="egovid-warm-up", daemon=True)
+            t.start()
+            _warmed.append(t)
 
 
 class MatchCache:
@@ -187,8 +204,10 @@ class OrbSearch:
         stopped: np.ndarray,
         fps: float,
         scorer: OrbScorer | None = None,
+        coarse: int = 1,
     ) -> None:
         self.ref_feats, self.m = ref_feats, m
+        self.coarse = max(1, int(coarse))
         self.prior, self.speed_new, self.speed_ref, self.stopped = prior, speed_new, speed_ref, stopped
         self.fps = fps
         self.scorer = scorer or OrbScorer()
@@ -211,6 +230,22 @@ class OrbSearch:
         if not self.stopped[k]:
             self.n_moving += 1
 
+    def _score(self, k: int, feat: FrameFeatures, cands: range, wide: bool) -> list[tuple[int, int]]:
+        """(inliers, j) of the candidates, in order of j. A wide search (around the GPS prior) with
+        ``coarse`` = c > 1 scores every c-th candidate, then the c − 1 either side of the best:
+        inlier counts rise and fall over several frames, and the prior's window holds 3 s of
+        reference frames, scored once per drive but at the start, while the encoder waits."""
+        scorer = self.scorer
+        if not wide or self.coarse == 1 or len(cands) <= 3 * self.coarse:
+            return [(scorer.inliers(feat, self.ref_feats(j), (k, j)), j) for j in cands]
+        c = self.coarse
+        got = {j: scorer.inliers(feat, self.ref_feats(j), (k, j)) for j in cands[::c]}
+        best = max(got.items(), key=lambda t: (t[1], -t[0]))[0]
+        for j in range(max(cands.start, best - c + 1), min(cands.stop, best + c)):
+            if j not in got:
+                got[j] = scorer.inliers(feat, self.ref_feats(j), (k, j))
+        return [(got[j], j) for j in sorted(got)]
+
     def step(self, k: int, feat: FrameFeatures) -> tuple[int, int]:
         """The match of new frame ``k`` (frames come in order; those in between may be
         :meth:`skip`-ped) and the inlier count that chose it (0: held over a stop, or the GPS
@@ -222,8 +257,9 @@ class OrbSearch:
         if prev is not None and self.stopped[k]:
             return prev, 0
         self.n_moving += 1
+        wide = None
         if prev is None:
-            cands = range(max(0, p - self.wide), min(m, p + self.wide + 1))
+            wide = cands = range(max(0, p - self.wide), min(m, p + self.wide + 1))
         else:
             # Reference frames passed per new frame: the speed ratio of the drives, scaled like the
             # thesis' S by how the ratio changed since the last second's mean step. S covers twice
@@ -238,7 +274,7 @@ class OrbSearch:
             self.ratio_prev = ratio
             S = math.ceil(min(max(mean_step, ratio), 2.0 * ratio + 0.5) * (gap + 1)) + 1
             cands = range(prev, min(m, prev + S + 1))
-        scored = [(scorer.inliers(feat, self.ref_feats(j), (k, j)), j) for j in cands]
+        scored = self._score(k, feat, cands, wide is not None)
         best_n = max((c for c, _ in scored), default=-1)
         # Ties within 5 % go to the earliest frame: ORB favours frames slightly ahead.
         best_j = next((j for c, j in scored if c >= 0.95 * best_n), None) if best_n > 0 else None
@@ -251,7 +287,7 @@ class OrbSearch:
         elif prev is not None and abs(best_j - prior[k]) > tol:
             # Far from where GPS says (a false match, or drift): re-search around the prior.
             cands = range(max(prev, p - self.wide), min(m, p + self.wide + 1))
-            scored = [(scorer.inliers(feat, self.ref_feats(j), (k, j)), j) for j in cands]
+            scored = self._score(k, feat, cands, True)
             if scored:
                 best_n, best_j = max(scored)
         self.prev = int(best_j)

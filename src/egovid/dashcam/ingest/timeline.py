@@ -12,7 +12,9 @@ many frames are in flight.
 ``every`` = e > 1 (the realtime preset's 2): the ORB aligners search and refine only every e-th
 moving frame (and the last one, and the last before a stop); the search's matches and the
 refinement's crossings of the frames in between are interpolated on a line between their measured
-neighbours, before each smoothing. The smoothing already fits a line over 9 frames, so on the
+neighbours, before each smoothing; the wide searches around the GPS prior (the first frame, and
+after a match far from it) score every 3rd reference frame, then the neighbours of the best
+(align.OrbSearch ``coarse``). The smoothing already fits a line over 9 frames, so on the
 synthetic different-day drives the matches stay as close to the ground truth
 (``benchmarks/dashcam_bdrate.py``) for half the alignment work.
 """
@@ -54,7 +56,10 @@ class StreamingAlignment:
         self.last: int | None = None
         self.fallbacks = 0
         if kind in ("orb", "orb-plain"):
-            self.search = OrbSearch(ref.feats, self.m, prior, speed_new, speed_ref, self.stopped, fps, ref.scorer)
+            coarse = 3 if self.every > 1 else 1
+            self.search = OrbSearch(
+                ref.feats, self.m, prior, speed_new, speed_ref, self.stopped, fps, ref.scorer, coarse
+            )
         if kind == "orb":
             self.sm1 = StreamSmoother(self.n)
             self.sm2 = StreamSmoother(self.n, ref.refiner.window, median=5, stopped=self.stopped)

@@ -336,7 +336,50 @@ def estimate_similarity(pts_new: np.ndarray, pts_ref: np.ndarray, scale: float) 
 
 
 def digest_update(h, frame: np.ndarray) -> None:
-    h.update(np.ascontiguousarray(frame).tobytes())
+    h.update(np.ascontiguousarray(frame))  # the array's own buffer: no copy
+
+
+class _Digests:
+    """The segment digest and the per-run digests of the encoder's pictures, hashed in a thread
+    of their own, in order (SHA-256 releases the GIL: the encoder's thread does not wait for it;
+    at most a few frames queue)."""
+
+    def __init__(self, refresh: int) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.refresh = refresh
+        self.h, self.run_h = hashlib.sha256(), hashlib.sha256()
+        self.runs: list[str] = []
+        self.n = 0
+        self.pool = ThreadPoolExecutor(1, thread_name_prefix="egovid-digest")
+        self.queued: list = []
+
+    def _add(self, rec: np.ndarray) -> None:
+        digest_update(self.h, rec)
+        self.n += 1
+        if self.refresh:
+            digest_update(self.run_h, rec)
+            if self.n % self.refresh == 0:
+                self.runs.append(self.run_h.hexdigest()[:RUN_DIGEST_CHARS])
+                self.run_h = hashlib.sha256()
+
+    def add(self, rec: np.ndarray) -> None:
+        self.queued = [f for f in self.queued if not f.done()]
+        while len(self.queued) > 4:
+            self.queued.pop(0).result()
+        self.queued.append(self.pool.submit(self._add, rec))
+
+    def result(self) -> tuple[str, list[str]]:
+        """(segment digest, run digests; none for a single run) once every picture is hashed."""
+        self.pool.shutdown(wait=True)
+        for f in self.queued:
+            f.result()
+        if self.refresh and self.n % self.refresh:
+            self.runs.append(self.run_h.hexdigest()[:RUN_DIGEST_CHARS])
+        return self.h.hexdigest(), self.runs
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 RUN_DIGEST_CHARS = 16  # 64 bits of SHA-256 per run: ample to catch damage, 16 bytes per 24 frames
@@ -382,9 +425,7 @@ def encode_segment(
     starts: list[int] = []
     size_of: dict[int, int] = {}
     pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    h = hashlib.sha256()
-    run_h = hashlib.sha256()  # the current random-access run's pictures (with settings.refresh > 0)
-    run_digests: list[str] = []
+    digests = _Digests(settings.refresh)
     acc = {"se": 0.0, "pix": 0, "next": 0}
     follow = {"on": dec is not None}  # the decoder follows the current run
 
@@ -412,24 +453,18 @@ def encode_segment(
         return pkt, rec
 
     def finish(k: int, frame: np.ndarray, coded: tuple[bytes, np.ndarray]) -> np.ndarray:
-        nonlocal run_h
         pkt, padded_rec = coded
         emit(pkt)
         size_of[k] = size_of.get(k, 0) + len(pkt)
         pending[k] = (frame, vpx.crop_i420(padded_rec, width, height))
         while acc["next"] in pending:
             src, rec = pending.pop(acc["next"])
-            digest_update(h, rec)
+            digests.add(rec)
             acc["se"] += float(cv2.norm(rec[:height], src[:height], cv2.NORM_L2SQR))
             acc["pix"] += height * width
             if keep_recon is not None:
                 keep_recon.append(rec)
             acc["next"] += 1
-            if settings.refresh:
-                digest_update(run_h, rec)
-                if acc["next"] % settings.refresh == 0:
-                    run_digests.append(run_h.hexdigest()[:RUN_DIGEST_CHARS])
-                    run_h = hashlib.sha256()
             if progress is not None:
                 progress(acc["next"])
         return padded_rec
@@ -480,21 +515,24 @@ def encode_segment(
                     a, a_rec = b, b_rec
                     n += len(chunk)
             k0 += n
+    except BaseException:
+        digests.close()
+        raise
     finally:
         enc.close()
         if dec is not None:
             dec.close()
     if not body["packets"]:
+        digests.close()
         raise EgovidError("a segment with no frames cannot be encoded")
-    if settings.refresh and k0 % settings.refresh:
-        run_digests.append(run_h.hexdigest()[:RUN_DIGEST_CHARS])
+    recon_digest, run_digests = digests.result()
     mse = acc["se"] / max(acc["pix"], 1)
     psnr = 10 * np.log10(255.0**2 / mse) if mse > 0 else 100.0
     sizes = [size_of[k] for k in range(k0)]
     header = pack_header(width, height, settings.q, body["packets"], gop, settings.refresh, starts)
     blob = b"" if spool is not None else header + b"".join(map(frame_packet, packets))
     offsets = [len(header) + o for o in run_body] + [len(header) + body["bytes"]]
-    return EncodedSegment(blob, k0, h.hexdigest(), float(psnr), sizes, run_digests, header, offsets[-1], offsets, spool)
+    return EncodedSegment(blob, k0, recon_digest, float(psnr), sizes, run_digests, header, offsets[-1], offsets, spool)
 
 
 def decode_segment(

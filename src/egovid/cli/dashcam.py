@@ -106,7 +106,7 @@ def ingest(
     preset: str = typer.Option(
         None,
         "--preset",
-        help="realtime (default: libvpx's realtime deadline, the fastest; about 20 fps for a 720p drive coded "
+        help="realtime (default: libvpx's realtime deadline, the fastest; about 30 fps for a 720p drive coded "
         "against an older one on two cores) | balanced (libvpx's good-quality deadline on 2 threads: the older "
         "drive saves about twice as much, several times slower) | archive (good-quality, 1 thread: smallest "
         "files, slowest). See docs/dashcam.md. The options below override it.",
@@ -134,7 +134,12 @@ def ingest(
     measure_savings: bool = typer.Option(
         False, "--measure-savings", help="Also encode each joint piece alone, to report the saving (doubles encoding)."
     ),
-    verify: bool = typer.Option(True, help="Decode each new bitstream beside the encoder and compare (cheap)."),
+    verify: bool = typer.Option(
+        True,
+        help="Decode the new bitstream beside the encoder and compare: every random-access run with balanced "
+        "and archive; the first, the last and a seeded quarter of the others with realtime (every run's digest "
+        "is checked by every extract either way).",
+    ),
     workers: int = typer.Option(
         1, "--workers", min=1, max=512, help="Drives ingested at once on this machine (worker processes)."
     ),

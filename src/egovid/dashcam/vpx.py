@@ -435,7 +435,9 @@ class VP9Encoder(_Codec):
         ``golden`` only at low delay — right after a keyframe every reference slot shares one
         buffer, so the load shows in LAST too); ``"anchor"`` (LAST is first loaded with ``last``,
         the previous anchor; the result refreshes ALTREF only); ``"between"`` (from LAST = the
-        previous frame and ALTREF = the anchor ahead; refreshes LAST). ``golden`` is injected into
+        previous frame and ALTREF = the anchor ahead; refreshes LAST); ``"hold"`` (refreshes no
+        reference: it only moves libvpx's frames-since-golden counter off 0, see
+        :data:`codec.START_BASELINE_HELD`; its picture is in no slot). ``golden`` is injected into
         GOLDEN, which is never refreshed. The decoder must repeat the same loads in the same order
         (:meth:`VP9Decoder.decode`)."""
         if role == "key":
@@ -450,9 +452,12 @@ class VP9Encoder(_Codec):
             flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_LAST | VP8_EFLAG_NO_REF_ARF
         elif role == "between":
             flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF
+        elif role == "hold":
+            flags = VP8_EFLAG_NO_UPD_LAST | VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF
         else:
             raise ValueError(f"unknown frame role {role!r}")
-        if (role == "key" and golden is not None) or (role in ("key", "ra", "p") and last is not None):
+        no_golden, no_last = ("key", "hold"), ("key", "hold", "ra", "p")
+        if (role in no_golden and golden is not None) or (role in no_last and last is not None):
             raise ValueError(f"no such reference load on a {role!r} frame")
         if last is not None:
             self.set_reference(last, VP8_LAST_FRAME)
@@ -636,6 +641,21 @@ def self_test() -> str:
         dec = VP9Decoder(w, h)
         dec.decode(run[0])
         ok = ok and np.array_equal(dec.decode(run[1], goldens[1]), r1) and np.array_equal(dec.decode(run[2]), r2)
+        dec.close()
+        # The same at the realtime deadline with a frame that refreshes nothing after the keyframe
+        # (codec.START_BASELINE_HELD): the decoder's GOLDEN must still be the encoder's.
+        enc = VP9Encoder(w, h, EncoderSettings(q=20, speed=9, realtime=True))
+        grey = np.full_like(frames[0], 128)
+        run = [enc.encode_structured(grey, "key"), enc.encode_structured(grey, "hold")]
+        run.append(enc.encode_structured(frames[1], "ra", goldens[1]))
+        r1 = enc.reconstruction()
+        run.append(enc.encode_structured(frames[2], "p"))
+        r2 = enc.reconstruction()
+        enc.close()
+        dec = VP9Decoder(w, h)
+        dec.decode(run[0])
+        dec.decode(run[1])
+        ok = ok and np.array_equal(dec.decode(run[2], goldens[1]), r1) and np.array_equal(dec.decode(run[3]), r2)
         dec.close()
     except EgovidError:
         raise

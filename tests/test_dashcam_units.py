@@ -239,7 +239,9 @@ def test_injected_reference_decodes_bit_exactly(kind, gop, refresh, realtime):
         return None if k == 5 else codec.apply_alignment(vpx.pad_i420(refs[k], w, h), w, h, kind, params)
 
     recon = []
-    settings = vpx.EncoderSettings(q=30, speed=9 if realtime else 6, realtime=realtime, gop=gop, refresh=refresh)
+    settings = vpx.EncoderSettings(
+        q=30, speed=9 if realtime else 6, realtime=realtime, gop=gop, refresh=refresh, start_speed=5 if realtime else 0
+    )
     enc = codec.encode_segment(iter(frames), w, h, settings, baseline, keep_recon=recon, verify=True)
     sb = codec.parse(enc.blob)
     runs = codec.substreams(n, refresh)

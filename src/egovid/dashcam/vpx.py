@@ -335,7 +335,10 @@ class EncoderSettings:
     coding structure ``gop`` (1 = low delay; G > 1 = every G-th frame an *anchor* predicted from the
     anchor before it, the frames between coded after it from the previous frame and the anchor
     ahead, at quantiser ``q + gop_dq``; see :mod:`egovid.dashcam.codec`) and ``refresh``, the
-    random-access period in frames (0 = only the first frame; see :func:`codec.substreams`)."""
+    random-access period in frames (0 = only the first frame; see :func:`codec.substreams`);
+    ``start_speed``: cpu-used for the first frame of a joint run, the one predicted from the
+    baseline alone (0 = ``speed``; a twenty-fourth of the frames, so a slower search there is
+    cheap)."""
 
     q: int = 32
     speed: int = 4
@@ -347,8 +350,11 @@ class EncoderSettings:
     threads: int = 1
     tile_columns: int = 0
     row_mt: bool = False
+    start_speed: int = 0
 
     def __post_init__(self) -> None:
+        if not 0 <= self.start_speed <= 9:
+            raise EgovidError(f"run-start cpu-used {self.start_speed} is outside 0-9", "use 0 (= speed) or e.g. 5")
         if not 1 <= self.threads <= 64:
             raise EgovidError(f"{self.threads} encoder threads is outside 1-64", "use e.g. 2")
         if not 0 <= self.tile_columns <= 6:
@@ -465,7 +471,14 @@ class VP9Encoder(_Codec):
             self.set_reference(golden, VP8_GOLD_FRAME)
         self._set_q(self.settings.q if q is None else q)
         self._recon_slot = VP8_ALTR_FRAME if role == "anchor" else VP8_LAST_FRAME
-        return self._encode(frame, flags)
+        start_speed = self.settings.start_speed
+        if role != "ra" or start_speed in (0, self.settings.speed):
+            return self._encode(frame, flags)
+        self._control(VP8E_SET_CPUUSED, ctypes.c_int(start_speed))
+        try:
+            return self._encode(frame, flags)
+        finally:
+            self._control(VP8E_SET_CPUUSED, ctypes.c_int(self.settings.speed))
 
     def encode(self, frame: np.ndarray, golden: np.ndarray | None = None) -> bytes:
         """Encode one padded I420 frame; ``golden`` (padded I420) is injected before it. The first

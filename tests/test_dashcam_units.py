@@ -248,6 +248,9 @@ def test_injected_reference_decodes_bit_exactly(kind, gop, refresh, realtime):
     joint_start = codec.START_BASELINE_HELD if realtime else codec.START_BASELINE
     assert sb.starts == tuple(codec.START_KEY if k0 == 5 else joint_start for k0, _ in runs)
     assert enc.blob[4:6] == (b"\x04\x00" if realtime else b"\x03\x00")  # version 4 only with held starts
+    lay, _ = codec.parse_header(enc.blob)  # one run per random-access period, however it starts
+    assert len(lay.run_packets()) == len(runs) and len(codec.run_offsets(enc.blob)) == len(runs) + 1
+    assert [lay.plan()[p0][1] for p0, _ in lay.run_packets()] == ["key" if s == 0 else "dummy" for s in sb.starts]
     if realtime:  # a held start in a version-3 header is damage (version-3 readers do not know it)
         with pytest.raises(EgovidError, match="inconsistent layout"):
             codec.parse(enc.blob[:4] + b"\x03\x00" + enc.blob[6:])

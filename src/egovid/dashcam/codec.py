@@ -117,7 +117,10 @@ class SegmentLayout:
 
     def run_packets(self) -> list[tuple[int, int]]:
         """(first packet, end packet) of every random-access run, in coding order."""
-        firsts = [i for i, (_, role, _) in enumerate(self.plan()) if role in ("key", "dummy")]
+        plan = self.plan()  # a run starts at its keyframe or at its first undisplayed frame
+        firsts = [
+            i for i, (_, role, _) in enumerate(plan) if role == "key" or (role == "dummy" and plan[i - 1][1] != "dummy")
+        ]
         return list(itertools.pairwise([*firsts, self.n_packets]))
 
 

@@ -13,18 +13,18 @@ BASELINE_ALIGN = ("none", "gain", "similarity")
 #: Named settings (``--preset``); explicit options override them. Measured in
 #: benchmarks/dashcam_ingest_speed.py (speed) and benchmarks/dashcam_bdrate.py (savings).
 PRESETS: dict[str, dict] = {
-    # libvpx's realtime deadline at its fastest speed, two threads sharing rows of one tile column
-    # (two tile columns save 0.7 points less and are no faster), the first frame of each joint
-    # random-access run at cpu-used 5 (0.6 points, no measurable time); one set of ORB key points
-    # per frame shared by the search and the refinement, which measure every 2nd frame (the others
-    # interpolated). docs/dashcam.md, "Why the realtime deadline saved less".
+    # libvpx's realtime deadline at its fastest speed, two threads sharing rows and two tile
+    # columns (one column saves 0.6 points more but root drives ingest slower), the first frame of
+    # each joint random-access run at cpu-used 5 (0.6 points, no measurable time); one set of ORB
+    # key points per frame shared by the search and the refinement, which measure every 2nd frame
+    # (the others interpolated). docs/dashcam.md, "Why the realtime deadline saved less".
     "realtime": {
         "realtime": True,
         "speed": 9,
         "start_speed": 5,
         "threads": 2,
         "row_mt": True,
-        "tile_columns": 0,
+        "tile_columns": 1,
         "refine_radius": 2,
         "refine_features": 0,
         "align_every": 2,
@@ -96,7 +96,7 @@ class IngestOptions:
     verify: bool = True
     threads: int = 2
     row_mt: bool = True
-    tile_columns: int = 0
+    tile_columns: int = 1
     start_speed: int = 5
     refine_radius: int = 2
     refine_features: int = 0

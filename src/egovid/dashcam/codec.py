@@ -52,9 +52,17 @@ from egovid.errors import EgovidError
 
 MAGIC = b"EGV9"
 VERSION = 3
+VERSION_HELD = 4  # version 3 with runs that start with START_BASELINE_HELD
 _HEADER = struct.Struct("<4sHHHHHIBB")
 _LAYOUT = struct.Struct("<HI")  # version 3: random-access period, number of runs; then a start byte per run
-START_KEY, START_BASELINE = 0, 1
+START_KEY, START_BASELINE, START_BASELINE_HELD = 0, 1, 2
+#: Undisplayed packets before a run's first frame, by how the run starts: a grey keyframe for
+#: START_BASELINE; a grey keyframe and a grey frame that refreshes no reference for
+#: START_BASELINE_HELD (blob version 4), which the realtime deadline needs: libvpx's realtime mode
+#: decision (vp9_pickmode.c) never searches GOLDEN on a frame right after GOLDEN was refreshed
+#: (``rc.frames_since_golden == 0``, as after every keyframe), so without it the run's first frame
+#: could not use the injected baseline and came out intra-coded.
+DUMMIES = {START_KEY: 0, START_BASELINE: 1, START_BASELINE_HELD: 2}
 
 
 @dataclass
@@ -102,14 +110,17 @@ class SegmentLayout:
 
     @property
     def frames(self) -> int:
-        return self.n_packets - sum(1 for s in self.starts if s == START_BASELINE)
+        return self.n_packets - sum(DUMMIES[s] for s in self.starts)
 
     def plan(self) -> list[tuple[int, str, int | None]]:
         return coding_plan(self.frames, self.gop, self.refresh, self.starts)
 
     def run_packets(self) -> list[tuple[int, int]]:
         """(first packet, end packet) of every random-access run, in coding order."""
-        firsts = [i for i, (_, role, _) in enumerate(self.plan()) if role in ("key", "dummy")]
+        plan = self.plan()  # a run starts at its keyframe or at its first undisplayed frame
+        firsts = [
+            i for i, (_, role, _) in enumerate(plan) if role == "key" or (role == "dummy" and plan[i - 1][1] != "dummy")
+        ]
         return list(itertools.pairwise([*firsts, self.n_packets]))
 
 
@@ -129,7 +140,7 @@ class SegmentBlob:
 
     @property
     def frames(self) -> int:
-        return len(self.packets) - sum(1 for s in self.starts if s == START_BASELINE)
+        return len(self.packets) - sum(DUMMIES[s] for s in self.starts)
 
     def plan(self) -> list[tuple[int, str, int | None]]:
         return coding_plan(self.frames, self.gop, self.refresh, self.starts)
@@ -153,7 +164,8 @@ def pack_header(
 ) -> bytes:
     """The header and run layout of a segment blob of ``n_packets`` packets."""
     pw, ph = vpx.padded_size(width, height)
-    head = _HEADER.pack(MAGIC, VERSION, width, height, pw, ph, n_packets, q, gop)
+    version = VERSION_HELD if START_BASELINE_HELD in starts else VERSION
+    head = _HEADER.pack(MAGIC, version, width, height, pw, ph, n_packets, q, gop)
     return head + _LAYOUT.pack(refresh, len(starts)) + bytes(starts)
 
 
@@ -172,7 +184,7 @@ def parse_header(buf: bytes) -> tuple[SegmentLayout, int]:
     if len(buf) < _HEADER.size:
         raise _damaged()
     magic, version, w, h, _pw, _ph, n, q, gop = _HEADER.unpack_from(buf, 0)
-    if magic != MAGIC or version not in (1, 2, 3) or (version == 1 and gop != 0) or (version > 1 and gop < 1):
+    if magic != MAGIC or version not in (1, 2, 3, 4) or (version == 1 and gop != 0) or (version > 1 and gop < 1):
         raise EgovidError("segment blob has an unknown format", "the archive is damaged or from another version")
     gop = max(gop, 1)
     off = _HEADER.size
@@ -187,7 +199,8 @@ def parse_header(buf: bytes) -> tuple[SegmentLayout, int]:
         starts = tuple(buf[off : off + runs])
         off += runs
     lay = SegmentLayout(w, h, q, gop, refresh, starts, n)
-    if any(s not in (START_KEY, START_BASELINE) for s in starts) or len(starts) != len(substreams(lay.frames, refresh)):
+    allowed = (START_KEY, START_BASELINE, START_BASELINE_HELD) if version >= 4 else (START_KEY, START_BASELINE)
+    if any(s not in allowed for s in starts) or len(starts) != len(substreams(lay.frames, refresh)):
         raise _damaged("has an inconsistent layout")
     return lay, off
 
@@ -250,8 +263,8 @@ def coding_plan(
     previous frame)."""
     plan: list[tuple[int, str, int | None]] = []
     for i, (k0, m) in enumerate(substreams(n, refresh)):
-        if starts is not None and starts[i] == START_BASELINE:
-            plan += [(k0, "dummy", None), (k0, "ra", None)]
+        if starts is not None and starts[i] != START_KEY:
+            plan += [(k0, "dummy", None)] * DUMMIES[starts[i]] + [(k0, "ra", None)]
         else:
             plan.append((k0, "key", None))
         if gop <= 1:
@@ -437,14 +450,15 @@ def encode_segment(
         body["packets"] += 1
         body["bytes"] += 4 + len(pkt)
 
-    def code(frame, role, golden=None, last=None, q=None) -> tuple[bytes, np.ndarray]:
+    def code(frame, role, golden=None, last=None, q=None) -> tuple[bytes, np.ndarray | None]:
         t0 = time.perf_counter()
         pkt = enc.encode_structured(frame, role, golden, last, q)
-        rec = enc.reconstruction()
+        rec = enc.reconstruction() if role != "hold" else None  # a hold frame's picture is in no slot
         t1 = time.perf_counter()
         clock["encode"] = clock.get("encode", 0.0) + t1 - t0
         if follow["on"]:
-            if not np.array_equal(dec.decode(pkt, golden, last), rec):
+            out = dec.decode(pkt, golden, last)
+            if rec is not None and not np.array_equal(out, rec):
                 raise EgovidError(
                     "the decoder does not reproduce the encoder's pictures",
                     "report this with the libvpx version (egovid dashcam report shows it); nothing was stored",
@@ -487,10 +501,13 @@ def encode_segment(
             follow["on"] = dec is not None and (verify_runs is None or verify_runs(len(run_body)))
             run_body.append(body["bytes"])
             if b0 is not None:  # the run starts from the older drive instead of a keyframe
-                starts.append(START_BASELINE)
-                dummy, _ = code(grey, "key")
-                emit(dummy)
-                size_of[k0] = len(dummy)
+                start = START_BASELINE_HELD if settings.realtime else START_BASELINE
+                starts.append(start)
+                size_of[k0] = 0
+                for role in ("key", "hold")[: DUMMIES[start]]:
+                    dummy, _ = code(grey, role)
+                    emit(dummy)
+                    size_of[k0] += len(dummy)
                 finish(k0, first, code(pad(first), "ra", b0))
             else:
                 starts.append(START_KEY)

@@ -335,7 +335,10 @@ class EncoderSettings:
     coding structure ``gop`` (1 = low delay; G > 1 = every G-th frame an *anchor* predicted from the
     anchor before it, the frames between coded after it from the previous frame and the anchor
     ahead, at quantiser ``q + gop_dq``; see :mod:`egovid.dashcam.codec`) and ``refresh``, the
-    random-access period in frames (0 = only the first frame; see :func:`codec.substreams`)."""
+    random-access period in frames (0 = only the first frame; see :func:`codec.substreams`);
+    ``start_speed``: cpu-used for the first frame of a joint run, the one predicted from the
+    baseline alone (0 = ``speed``; a twenty-fourth of the frames, so a slower search there is
+    cheap)."""
 
     q: int = 32
     speed: int = 4
@@ -347,8 +350,11 @@ class EncoderSettings:
     threads: int = 1
     tile_columns: int = 0
     row_mt: bool = False
+    start_speed: int = 0
 
     def __post_init__(self) -> None:
+        if not 0 <= self.start_speed <= 9:
+            raise EgovidError(f"run-start cpu-used {self.start_speed} is outside 0-9", "use 0 (= speed) or e.g. 5")
         if not 1 <= self.threads <= 64:
             raise EgovidError(f"{self.threads} encoder threads is outside 1-64", "use e.g. 2")
         if not 0 <= self.tile_columns <= 6:
@@ -435,7 +441,9 @@ class VP9Encoder(_Codec):
         ``golden`` only at low delay — right after a keyframe every reference slot shares one
         buffer, so the load shows in LAST too); ``"anchor"`` (LAST is first loaded with ``last``,
         the previous anchor; the result refreshes ALTREF only); ``"between"`` (from LAST = the
-        previous frame and ALTREF = the anchor ahead; refreshes LAST). ``golden`` is injected into
+        previous frame and ALTREF = the anchor ahead; refreshes LAST); ``"hold"`` (refreshes no
+        reference: it only moves libvpx's frames-since-golden counter off 0, see
+        :data:`codec.START_BASELINE_HELD`; its picture is in no slot). ``golden`` is injected into
         GOLDEN, which is never refreshed. The decoder must repeat the same loads in the same order
         (:meth:`VP9Decoder.decode`)."""
         if role == "key":
@@ -450,9 +458,12 @@ class VP9Encoder(_Codec):
             flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_LAST | VP8_EFLAG_NO_REF_ARF
         elif role == "between":
             flags = VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF
+        elif role == "hold":
+            flags = VP8_EFLAG_NO_UPD_LAST | VP8_EFLAG_NO_UPD_GF | VP8_EFLAG_NO_UPD_ARF
         else:
             raise ValueError(f"unknown frame role {role!r}")
-        if (role == "key" and golden is not None) or (role in ("key", "ra", "p") and last is not None):
+        no_golden, no_last = ("key", "hold"), ("key", "hold", "ra", "p")
+        if (role in no_golden and golden is not None) or (role in no_last and last is not None):
             raise ValueError(f"no such reference load on a {role!r} frame")
         if last is not None:
             self.set_reference(last, VP8_LAST_FRAME)
@@ -460,7 +471,14 @@ class VP9Encoder(_Codec):
             self.set_reference(golden, VP8_GOLD_FRAME)
         self._set_q(self.settings.q if q is None else q)
         self._recon_slot = VP8_ALTR_FRAME if role == "anchor" else VP8_LAST_FRAME
-        return self._encode(frame, flags)
+        start_speed = self.settings.start_speed
+        if role != "ra" or start_speed in (0, self.settings.speed):
+            return self._encode(frame, flags)
+        self._control(VP8E_SET_CPUUSED, ctypes.c_int(start_speed))
+        try:
+            return self._encode(frame, flags)
+        finally:
+            self._control(VP8E_SET_CPUUSED, ctypes.c_int(self.settings.speed))
 
     def encode(self, frame: np.ndarray, golden: np.ndarray | None = None) -> bytes:
         """Encode one padded I420 frame; ``golden`` (padded I420) is injected before it. The first
@@ -636,6 +654,21 @@ def self_test() -> str:
         dec = VP9Decoder(w, h)
         dec.decode(run[0])
         ok = ok and np.array_equal(dec.decode(run[1], goldens[1]), r1) and np.array_equal(dec.decode(run[2]), r2)
+        dec.close()
+        # The same at the realtime deadline with a frame that refreshes nothing after the keyframe
+        # (codec.START_BASELINE_HELD): the decoder's GOLDEN must still be the encoder's.
+        enc = VP9Encoder(w, h, EncoderSettings(q=20, speed=9, realtime=True))
+        grey = np.full_like(frames[0], 128)
+        run = [enc.encode_structured(grey, "key"), enc.encode_structured(grey, "hold")]
+        run.append(enc.encode_structured(frames[1], "ra", goldens[1]))
+        r1 = enc.reconstruction()
+        run.append(enc.encode_structured(frames[2], "p"))
+        r2 = enc.reconstruction()
+        enc.close()
+        dec = VP9Decoder(w, h)
+        dec.decode(run[0])
+        dec.decode(run[1])
+        ok = ok and np.array_equal(dec.decode(run[2], goldens[1]), r1) and np.array_equal(dec.decode(run[3]), r2)
         dec.close()
     except EgovidError:
         raise

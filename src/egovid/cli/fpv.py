@@ -66,7 +66,7 @@ def motion(
     lags: str = typer.Option(
         "1,2,5",
         help="Frame distances of the vision pose-graph edges: 1 always, the longer ones take turns "
-        "(the thesis uses 1,5; see docs/fpv.md).",
+        "on every other frame (the thesis uses 1,5 on every frame; see docs/fpv.md).",
     ),
     features: str = typer.Option("orb", help="orb | sift."),
     work_width: int = typer.Option(640, min=160, max=3840, help="Width of the downscaled copy used for features."),

@@ -179,6 +179,9 @@ def collect_pairs(
     times: list[float] = []
     t_start = time.perf_counter()
     cv2.setRNGSeed(12345)
+    # The solver's libraries take ~1 s to import; the pair jobs leave the interpreter free most of
+    # the time (OpenCV and the compiled fit run without the GIL), so import them meanwhile.
+    threading.Thread(target=_import_solver, name="import-solver", daemon=True).start()
 
     def features_job(image: np.ndarray) -> FrameFeatures:
         # One extractor per worker thread (OpenCV's detectors keep state between calls).
@@ -233,6 +236,16 @@ def collect_pairs(
     finally:
         pool.shutdown(wait=True)
     return PairSet(np.asarray(times), pairs, work, matches, opts.threshold_px, time.perf_counter() - t_start)
+
+
+def _import_solver() -> None:
+    """Import what :func:`solve_motion` needs (GTSAM, SciPy's filters); failures are left to the
+    solver's own import, which reports them."""
+    try:
+        import gtsam  # noqa: F401
+        import scipy.signal  # noqa: F401
+    except Exception:  # the solver imports them again and says what is wrong
+        pass
 
 
 def _scheduled(i: int, lag: int, long_lags: list[int], every: int = 1) -> bool:

@@ -287,6 +287,14 @@ class AxisModel:
         return j
 
 
+def load_kernels() -> None:
+    """Load the compiled objective and the easing table now (~0.3 s the first time in a process),
+    so that a planner forked afterwards inherits them instead of loading them again."""
+    theta = np.linspace(0.0, 1.0, 16)
+    am = AxisModel(theta, "yaw", 90.0, 60.0, ViewingModel(), OptimizeOptions())
+    am.objective(np.zeros(len(am.anchors)))
+
+
 def optimize_axis(
     theta: np.ndarray,
     axis: str,

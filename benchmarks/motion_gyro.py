@@ -57,14 +57,14 @@ def main() -> None:
     old = estimate_motion(
         CLIP,
         Intrinsics.from_focal(info.width, info.height, 830.0 * info.width / 1920),
-        MotionOptions(lags=(1, 5), calibrate=False, detail_hz=None),
+        MotionOptions(lags=(1, 5), calibrate=False, detail_hz=None, long_every=1),
     )
     t_old = time.perf_counter() - t
     t = time.perf_counter()
     # The thesis' graph (stated noise, no bias removal) at the camera's own focal length, to
     # separate the intrinsics from the graph.
     thesis_graph = estimate_motion(
-        CLIP, vision.camera.intrinsics, MotionOptions(lags=(1, 5), calibrate=False, detail_hz=None)
+        CLIP, vision.camera.intrinsics, MotionOptions(lags=(1, 5), calibrate=False, detail_hz=None, long_every=1)
     )
     t_thesis = time.perf_counter() - t
     t = time.perf_counter()

@@ -144,3 +144,20 @@ def test_steps_detail_takes_frame_steps_above_the_cutoff_and_the_graph_below():
     chained = chain(n, [Edge(k, k + 1, Q) for k, Q in enumerate(steps)])
     assert rms(graph) > 0.06 and rms(chained) > 1.0
     assert rms(out) < 0.15 * rms(graph), (rms(out), rms(graph))
+
+
+def test_longer_pairs_on_every_other_frame_still_span_every_step():
+    """Lags 1, 2, 5 with the longer pairs on every other frame: 1.5 pairs per frame, and every
+    frame step lies under some longer pair (so the graph still holds the chain's drift)."""
+    from egovid.motion.estimate import _scheduled
+
+    n = 400
+    for every, per_frame in ((1, 2.0), (2, 1.5)):
+        lags = (1, 2, 5)
+        pairs = [(i, i + g) for i in range(n) for g in lags if i + g < n and _scheduled(i, g, [2, 5], every)]
+        assert len(pairs) / n == pytest.approx(per_frame, abs=0.02)
+        spanned = np.zeros(n - 1, bool)
+        for i, j in pairs:
+            if j - i > 1:
+                spanned[i:j] = True
+        assert spanned[: n - 8].all()

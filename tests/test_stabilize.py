@@ -78,6 +78,38 @@ def test_optimiser_trades_stability_for_little_fpmi():
     assert 0.5 < np.ptp(e) < np.ptp(a[:, 0])
 
 
+def test_compiled_objective_is_eq_9_4_from_the_public_pieces():
+    """The optimiser's one-call objective against eq. 9.4 assembled from the public functions
+    (anchors reduced, easing from the table, eased and pure motion, the scores' own windows)."""
+    from egovid.perception.score import axis_windows
+    from egovid.stabilize.optimize import AxisModel, OptimizeOptions
+
+    a = motions.running(150, 8, 2.5, 20, 1.5) + motions.jitter(150, (0.1, 0.1, 0.1), seed=3)
+    rng = np.random.default_rng(1)
+    for axis, col in (("yaw", 0), ("pitch", 1), ("roll", 2)):
+        for method in ("ve", "sve"):
+            am = AxisModel(a[:, col], axis, 98.3, 66.1, _model(), OptimizeOptions(method=method), context=a)
+
+            def score(theta, lo, am=am):
+                b = am.context[lo : lo + len(theta)].copy()
+                b[:, am.col] = theta
+                w = axis_windows(b, am.axis, am.hfov, am.vfov, am.model, am.opts.method)
+                return float(np.sqrt(np.mean(w * w)))
+
+            for _ in range(5):
+                D = rng.random(len(am.anchors))
+                lo, hi = sorted(rng.choice(np.arange(0, 151), 2, replace=False))
+                hi = max(hi, lo + 20)
+                v = reduce_anchors(am.geom, D)
+                k, s = am.shape(v)
+                eased = ease(am.anchors, v, k, s, am.n)[lo:hi]
+                pure = pure_fpm(am.anchors, v, am.n)[lo:hi]
+                want = 1.0 - score(eased, lo) + score(pure, lo)
+                movable = am.geom.room > 0
+                want += am.opts.tie_break * float(np.mean(1.0 - D[movable]))
+                assert am.objective(D, lo, hi) == pytest.approx(want, abs=1e-12)
+
+
 def _model():
     from egovid.perception.model import ViewingModel
 

@@ -2,6 +2,7 @@
 atomic writes and clear errors on bad files."""
 
 from fractions import Fraction
+from pathlib import Path
 
 import av
 import numpy as np
@@ -64,6 +65,21 @@ def test_exact_frame_count_and_variable_timestamps(tmp_path):
         for img, ti in zip(imgs, t, strict=True):
             w.write(img, ti)
     np.testing.assert_allclose(read_frames(tmp_path / "copy.mp4")[1], t, atol=1e-4)
+
+
+def test_probe_remembers_a_file_only_while_it_is_unchanged(tmp_path):
+    clip = tmp_path / "clip.mp4"
+    _write_with_av(clip, 8)
+    first = probe(clip)
+    assert first.frame_count == 8 and probe(str(clip)).path == Path(str(clip))
+    # Rewritten in place (same path, new content): probed afresh, not remembered.
+    _write_with_av(clip, 12)
+    assert probe(clip).frame_count == 12
+    # Replaced by another file of any size: probed afresh.
+    other = tmp_path / "other.mp4"
+    _write_with_av(other, 5, rotation=90)
+    other.replace(clip)
+    assert (probe(clip).frame_count, probe(clip).rotation) == (5, 90)
 
 
 @pytest.mark.parametrize("rotation", [90, -90, 180])

@@ -66,7 +66,7 @@ def motion(
     lags: str = typer.Option(
         "1,2,5",
         help="Frame distances of the vision pose-graph edges: 1 always, the longer ones take turns "
-        "(the thesis uses 1,5; see docs/fpv.md).",
+        "on every other frame (the thesis uses 1,5 on every frame; see docs/fpv.md).",
     ),
     features: str = typer.Option("orb", help="orb | sift."),
     work_width: int = typer.Option(640, min=160, max=3840, help="Width of the downscaled copy used for features."),
@@ -74,11 +74,11 @@ def motion(
 ) -> None:
     """Estimate the camera rotation of every frame.
 
-    Vision: features + RANSAC rotations between frames 1 apart and, taking turns, 2 or 5 apart,
-    refined by a pose graph on SO(3) (thesis ch. 6); above 1 Hz the frame-to-frame detail comes
-    from the 1-apart pairs alone (the longer pairs only stop slow drift). With a gyro in the file (GoPro, Sony,
-    Insta360, DJI) it is synced to the video and, by default, used instead; the JSON says which
-    source was used and why.
+    Vision: features + RANSAC rotations between frames 1 apart and, on every other frame taking
+    turns, 2 or 5 apart, refined by a pose graph on SO(3) (thesis ch. 6); above 1 Hz the
+    frame-to-frame detail comes from the 1-apart pairs alone (the longer pairs only stop slow
+    drift). With a gyro in the file (GoPro, Sony, Insta360, DJI) it is synced to the video and,
+    by default, used instead; the JSON says which source was used and why.
     Angles are yaw-pitch-roll relative to the first frame (README: conventions).
     """
     import json

@@ -20,7 +20,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from fractions import Fraction
 from pathlib import Path
 
@@ -33,6 +33,7 @@ from egovid.io.files import commit_temp, temp_sibling, track_temp, untrack_temp
 
 _FIX_VIDEO = "give a video file FFmpeg can decode (e.g. MP4/H.264, MKV, WebM)"
 _TRUNCATED_OK: dict[Path, int] = {}  # truncated videos a caller accepted -> frames they really have
+_PROBED: dict[tuple, VideoInfo] = {}  # recent probe() results by file identity and state (see probe)
 
 
 # FFmpeg's enum values (libavutil/pixfmt.h) by the names ffprobe prints.
@@ -246,7 +247,29 @@ def probe(path: str | os.PathLike, *, allow_truncated: bool = False) -> VideoInf
     ``allow_truncated``: then ``frame_count`` is the number of frames really there, and
     :func:`iter_frames` and :func:`count_frames` stop quietly after them for the rest of the
     process.
+
+    A file probed again unchanged (same inode, size, modification and change times) gives the
+    remembered answer without opening it: one job probes its input several times (~0.1 s each).
     """
+    try:
+        st = os.stat(path)
+        real = Path(path).resolve()
+        key = (real, st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+        key += (allow_truncated, real in _TRUNCATED_OK)
+    except OSError:
+        key = None  # _open() says what is wrong
+    info = _PROBED.get(key) if key is not None else None
+    if info is not None:
+        return replace(info, path=Path(path))  # as this caller named it
+    info = _probe(path, allow_truncated)
+    if key is not None:
+        _PROBED[key] = info
+        while len(_PROBED) > 32:
+            _PROBED.pop(next(iter(_PROBED)))
+    return info
+
+
+def _probe(path: str | os.PathLike, allow_truncated: bool) -> VideoInfo:
     container = _open(path)
     try:
         stream = container.streams.video[0]
@@ -654,6 +677,10 @@ class VideoWriter:
         ``libx264`` (default, MP4), ``ffv1`` (lossless, use an ``.mkv`` path), ``libvpx-vp9``...
     crf:
         Constant rate factor for x264/VP9 (lower = better quality).
+    threads, thread_type:
+        Encoder threads (0: as many as FFmpeg picks) and how they split the work: PyAV's default
+        ``SLICE``, or ``AUTO`` (frame and slice threads, the ``ffmpeg`` command's default; x264
+        then encodes several frames at once, faster for a whole video at a few frames' latency).
     colour:
         Colour tags written into the stream; :meth:`write` converts BGR with their matrix and
         range (BT.601 limited range where unknown), :meth:`write_i420` takes the planes as they are.
@@ -685,6 +712,7 @@ class VideoWriter:
         preset: str | None = "veryfast",
         pix_fmt: str | None = None,
         threads: int = 0,
+        thread_type: str | None = None,
         colour: ColourTags | None = None,
         rotation: int | None = None,
         keep_from: str | os.PathLike | None = None,
@@ -748,6 +776,8 @@ class VideoWriter:
         self._stream.options = opts
         if threads:
             self._stream.codec_context.thread_count = threads
+        if thread_type is not None:
+            self._stream.codec_context.thread_type = thread_type
         self._count = 0
         self._last_pts = -1
         self._passthrough: _Passthrough | None = None

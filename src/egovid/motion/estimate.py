@@ -1,7 +1,8 @@
 """Estimate per-frame camera rotations of a video from the pictures (thesis ch. 6), streaming.
 
 Pipeline: decode a downscaled grey copy (in presentation order) → keypoints once per frame →
-pairwise rotations to the frame 1 back and, taking turns, 2 or 5 back (``lags``) → the constant
+pairwise rotations to the frame 1 back and, on every other frame taking turns, 2 or 5 back
+(``lags``, ``long_every``) → the constant
 bias of the longer pairs removed → SO(3) pose graph with the noise of each edge group
 calibrated from the data → orientations, whose frame-to-frame detail (above ``detail_hz``)
 comes from the distance-1 pairs (:func:`steps_detail`). Only the last ``max(lags)``
@@ -53,12 +54,17 @@ class MotionOptions:
     """Tuning of :func:`estimate_motion`.
 
     ``lags`` are the frame distances of the pose-graph edges: every frame is paired with the
-    previous one, and the longer distances take turns (default 1, 2, 5: two pairs per frame;
-    the thesis uses 1 and 5, which leaves a 5-periodic error on real footage, see
-    :mod:`egovid.motion.posegraph`);
+    previous one, and the longer distances take turns on every ``long_every``-th frame (default
+    1, 2, 5 on every other frame: frame i is paired with i + 2 when i % 4 == 0 and with i + 5
+    when i % 4 == 2, 1.5 pairs per frame, and every step is still spanned by a longer pair; the
+    thesis uses 1 and 5 on every frame, which leaves a 5-periodic error on real footage, see
+    :mod:`egovid.motion.posegraph`). The longer pairs only hold the slow drift of chaining once
+    the frame-to-frame detail comes from the distance-1 pairs (``detail_hz``): with
+    ``detail_hz=None`` (the graph alone) give ``long_every=1``;
     ``work_width`` the width in pixels of the downscaled copy used for features;
     ``keep_matches`` keeps the refined point matches of pairs within the first that many frames
-    (for :func:`refit`); ``calibrate`` scales each edge group's noise to its residuals;
+    (for :func:`refit`; there the longer pairs are measured on every frame, for the focal-length
+    fit); ``calibrate`` scales each edge group's noise to its residuals;
     ``max_frames`` stops after that many frames; above ``detail_hz`` (Hz) the orientations follow
     the distance-1 pairs and below it the pose graph (:func:`steps_detail`; None: the graph alone).
     """
@@ -74,6 +80,7 @@ class MotionOptions:
     calibrate: bool = True
     max_frames: int | None = None
     detail_hz: float | None = STEPS_DETAIL_HZ
+    long_every: int = 2
 
 
 def _capped(info: np.ndarray | None, deg_per_px: float) -> np.ndarray | None:
@@ -150,6 +157,8 @@ def collect_pairs(
     opts = options or MotionOptions()
     if not opts.lags or min(opts.lags) < 1 or 1 not in opts.lags:
         raise EgovidError(f"lags {opts.lags} must include 1 and be positive", "use e.g. --lags 1,5")
+    if opts.long_every < 1:
+        raise EgovidError(f"long_every {opts.long_every} must be at least 1", "use 1 (every frame) or 2")
     info = probe(video)
     intr = intrinsics or Intrinsics.default(info.width, info.height)
     if (intr.width, intr.height) != (info.width, info.height):
@@ -170,6 +179,9 @@ def collect_pairs(
     times: list[float] = []
     t_start = time.perf_counter()
     cv2.setRNGSeed(12345)
+    # The solver's libraries take ~1 s to import; the pair jobs leave the interpreter free most of
+    # the time (OpenCV and the compiled fit run without the GIL), so import them meanwhile.
+    threading.Thread(target=_import_solver, name="import-solver", daemon=True).start()
 
     def features_job(image: np.ndarray) -> FrameFeatures:
         # One extractor per worker thread (OpenCV's detectors keep state between calls).
@@ -206,8 +218,11 @@ def collect_pairs(
             # Keypoints in the pool too: decoding (here) overlaps detection and matching (there).
             feats = pool.submit(features_job, frame.image)
             k = frame.index
+            # Pairs whose matches are kept serve a focal-length fit, which needs pairs that turn
+            # enough (the longer ones do most): there, every frame gets its longer pair.
+            every = opts.long_every if k >= opts.keep_matches else 1
             for lag in opts.lags:
-                if len(window) >= lag and _scheduled(k - lag, lag, long_lags):
+                if len(window) >= lag and _scheduled(k - lag, lag, long_lags, every):
                     j, fj = window[-lag]
                     pending.append(pool.submit(pair_job, j, fj, k, feats, work.K))
             window.append((k, feats))
@@ -223,11 +238,23 @@ def collect_pairs(
     return PairSet(np.asarray(times), pairs, work, matches, opts.threshold_px, time.perf_counter() - t_start)
 
 
-def _scheduled(i: int, lag: int, long_lags: list[int]) -> bool:
+def _import_solver() -> None:
+    """Import what :func:`solve_motion` needs (GTSAM, SciPy's filters); failures are left to the
+    solver's own import, which reports them."""
+    try:
+        import gtsam  # noqa: F401
+        import scipy.signal  # noqa: F401
+    except Exception:  # the solver imports them again and says what is wrong
+        pass
+
+
+def _scheduled(i: int, lag: int, long_lags: list[int], every: int = 1) -> bool:
     """Whether frame ``i`` is paired with frame ``i + lag``: always at distance 1; the longer
-    distances take turns (with lags 1, 2, 5: frame i is paired with i + 2 when i is even and
-    with i + 5 when i is odd), so each frame costs two pairs on average whatever the count."""
-    return lag == 1 or not long_lags or i % len(long_lags) == long_lags.index(lag)
+    distances take turns on every ``every``-th frame (with lags 1, 2, 5 and ``every`` 1: frame
+    i is paired with i + 2 when i is even and with i + 5 when i is odd; with ``every`` 2, with
+    i + 2 when i % 4 == 0 and with i + 5 when i % 4 == 2), so each frame costs 1 + 1/every
+    pairs on average whatever the count."""
+    return lag == 1 or not long_lags or i % (every * len(long_lags)) == every * long_lags.index(lag)
 
 
 def remove_closure_bias(pairs: list[tuple[int, int, PairRotation]]) -> list[tuple[int, int, PairRotation]]:
@@ -375,16 +402,16 @@ def steps_detail(
 
     # In each frame's own axes: the difference of the steps (a constant bias of the frame steps is
     # constant there, whatever the camera does), high-passed, on top of the graph's steps...
-    g = np.array([so3_log(graph[k].T @ graph[k + 1]) for k in range(n - 1)])
-    c = np.array([so3_log(Q) for Q in steps])
-    step = g + high(c - g)
+    g = so3_log(np.swapaxes(graph[:-1], 1, 2) @ graph[1:])
+    c = so3_log(np.asarray(steps))
+    E = so3_exp(g + high(c - g))
     R = np.empty_like(graph)
     R[0] = graph[0]
     for k in range(n - 1):
-        R[k + 1] = R[k] @ so3_exp(step[k])
+        R[k + 1] = R[k] @ E[k]
     # ...then what the composition still drifts from the graph is taken off again.
-    off = np.array([so3_log(G.T @ X) for G, X in zip(graph, R, strict=True)])
-    return np.array([G @ so3_exp(e) for G, e in zip(graph, high(off), strict=True)])
+    off = so3_log(np.swapaxes(graph, 1, 2) @ R)
+    return graph @ so3_exp(high(off))
 
 
 def _interpolated_steps(gaps: np.ndarray, edges: list[Edge], n: int) -> list[Edge]:

@@ -72,31 +72,26 @@ class Matcher:
     descriptors) with Lowe's ratio test. Exact and deterministic: the same descriptors always give
     the same matches, whatever thread runs it (FLANN's LSH index draws random hash functions from
     the process-wide C ``rand()``, so its matches changed with thread timing). Safe to call from
-    several threads."""
+    several threads. The two nearest neighbours come from ``cv2.batchDistance`` as arrays (what
+    ``BFMatcher.knnMatch`` computes, without building a Python object per match)."""
 
     def __init__(self, binary: bool, ratio: float = 0.8) -> None:
-        import threading
-
         self.ratio = ratio
         self.binary = binary
-        self._local = threading.local()
-
-    def _matcher(self) -> cv2.DescriptorMatcher:
-        m = getattr(self._local, "m", None)
-        if m is None:
-            m = cv2.BFMatcher(cv2.NORM_HAMMING if self.binary else cv2.NORM_L2)
-            self._local.m = m
-        return m
 
     def __call__(self, a: FrameFeatures, b: FrameFeatures) -> tuple[np.ndarray, np.ndarray]:
         """Matched point pairs ``(pts_a (M, 2), pts_b (M, 2))``."""
         if a.desc is None or b.desc is None or len(a) < 2 or len(b) < 2:
             empty = np.zeros((0, 2), np.float32)
             return empty, empty
-        knn = self._matcher().knnMatch(a.desc, b.desc, k=2)
-        ia, ib = [], []
-        for m in knn:
-            if len(m) == 2 and m[0].distance < self.ratio * m[1].distance:
-                ia.append(m[0].queryIdx)
-                ib.append(m[0].trainIdx)
-        return a.pts[ia], b.pts[ib]
+        dist, idx = cv2.batchDistance(
+            a.desc,
+            b.desc,
+            cv2.CV_32S if self.binary else cv2.CV_32F,
+            normType=cv2.NORM_HAMMING if self.binary else cv2.NORM_L2,
+            K=2,
+            update=0,
+            crosscheck=False,
+        )
+        ok = (idx[:, 1] >= 0) & (dist[:, 0] < self.ratio * dist[:, 1].astype(np.float64))
+        return a.pts[ok], b.pts[idx[ok, 0]]

@@ -24,10 +24,12 @@ is only constrained by points far from the image centre, so it is weaker than ya
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 MIN_INLIERS = 12
 #: Matches the joint rotation + translation refinement uses at most.
@@ -66,11 +68,10 @@ def bearings(pts: np.ndarray, K_inv: np.ndarray) -> np.ndarray:
 
 def kabsch(b_from: np.ndarray, b_to: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Rotation Q minimising sum w |b_to - Q b_from|^2 (both (N, 3) unit vectors)."""
-    w = np.ones(len(b_from)) if weights is None else weights
-    H = (b_from * w[:, None]).T @ b_to
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    b = np.asarray(b_from, dtype=np.float64)
+    if weights is not None:
+        b = b * np.asarray(weights, dtype=np.float64)[:, None]
+    return _kabsch_nb(np.ascontiguousarray(b), np.ascontiguousarray(b_to, dtype=np.float64))
 
 
 def rotation_zoom(xi: np.ndarray, xj: np.ndarray, iterations: int = 4, zoom: float = 1.0) -> tuple[np.ndarray, float]:
@@ -81,27 +82,18 @@ def rotation_zoom(xi: np.ndarray, xj: np.ndarray, iterations: int = 4, zoom: flo
     the side with more features. Solved by alternation: Kabsch on de-zoomed bearings, then the
     least-squares zoom in closed form, starting from ``zoom``.
     """
-    s = zoom
-    Q = np.eye(3)
-    for _ in range(iterations):
-        xi_ = xi.copy()
-        xi_[:, :2] /= s
-        bi = xi_ / np.linalg.norm(xi_, axis=1, keepdims=True)
-        bj = xj / np.linalg.norm(xj, axis=1, keepdims=True)
-        Q = kabsch(bj, bi)
-        u = xj @ Q.T
-        u = u[:, :2] / u[:, 2:3]
-        den = float(np.sum(u * u))
-        s = float(np.sum(u * xi[:, :2]) / den) if den > 1e-12 else 1.0
-    return Q, s
+    f64 = np.float64
+    return _rotation_zoom_nb(np.ascontiguousarray(xi, f64), np.ascontiguousarray(xj, f64), int(iterations), float(zoom))
 
 
 def rotation_residuals(Q: np.ndarray, pj: np.ndarray, pi: np.ndarray, K: np.ndarray, zoom: float = 1.0) -> np.ndarray:
     """Pixel distances between frame-i points and frame-j points rotated by ``Q`` (and zoomed by
     ``zoom`` about the principal point) into frame i."""
-    S = np.diag([zoom, zoom, 1.0])
-    h = np.column_stack([pj, np.ones(len(pj))]) @ (K @ S @ Q @ np.linalg.inv(K)).T
-    return np.linalg.norm(h[:, :2] / h[:, 2:3] - pi, axis=1)
+    f64 = np.float64
+    K = np.asarray(K, f64)
+    return _residuals_nb(
+        np.asarray(Q, f64), np.ascontiguousarray(pj, f64), np.ascontiguousarray(pi, f64), K, np.linalg.inv(K), zoom
+    )
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -284,6 +276,85 @@ def correspondences(
     return pi, pj
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _unit_rows(x: np.ndarray) -> np.ndarray:
+    out = np.empty_like(x)
+    for k in range(x.shape[0]):
+        n = math.sqrt(x[k, 0] ** 2 + x[k, 1] ** 2 + x[k, 2] ** 2)
+        out[k] = x[k] / n
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _kabsch_nb(b_from: np.ndarray, b_to: np.ndarray) -> np.ndarray:
+    H = np.ascontiguousarray(b_from.T) @ b_to
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    D = np.eye(3)
+    D[2, 2] = d
+    return Vt.T @ D @ U.T
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _rotation_zoom_nb(xi: np.ndarray, xj: np.ndarray, iterations: int, zoom: float) -> tuple[np.ndarray, float]:
+    s = zoom
+    Q = np.eye(3)
+    bj = _unit_rows(xj)
+    for _ in range(iterations):
+        xi_ = xi.copy()
+        xi_[:, 0] /= s
+        xi_[:, 1] /= s
+        Q = _kabsch_nb(bj, _unit_rows(xi_))
+        u = xj @ Q.T
+        num = 0.0
+        den = 0.0
+        for k in range(u.shape[0]):
+            ux, uy = u[k, 0] / u[k, 2], u[k, 1] / u[k, 2]
+            den += ux * ux + uy * uy
+            num += ux * xi[k, 0] + uy * xi[k, 1]
+        s = num / den if den > 1e-12 else 1.0
+    return Q, s
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _residuals_nb(Q: np.ndarray, pj: np.ndarray, pi: np.ndarray, K: np.ndarray, K_inv: np.ndarray, zoom: float):
+    S = np.eye(3)
+    S[0, 0] = zoom
+    S[1, 1] = zoom
+    M = K @ S @ Q @ K_inv
+    out = np.empty(pj.shape[0])
+    for k in range(pj.shape[0]):
+        hx = M[0, 0] * pj[k, 0] + M[0, 1] * pj[k, 1] + M[0, 2]
+        hy = M[1, 0] * pj[k, 0] + M[1, 1] * pj[k, 1] + M[1, 2]
+        hz = M[2, 0] * pj[k, 0] + M[2, 1] * pj[k, 1] + M[2, 2]
+        out[k] = math.hypot(hx / hz - pi[k, 0], hy / hz - pi[k, 1])
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fit_rotation_zoom(pi, pj, xi, xj, bi, bj, K, K_inv, threshold_px, min_inliers):  # pragma: no cover - numba
+    """The rotation model of :func:`rotation_from_correspondences` in one compiled call (no GIL,
+    so the pair jobs of two threads run at once): Kabsch on all matches, then three rounds of
+    rotation + zoom on the inliers with a robust noise estimate, and a final fit. Returns
+    (ok, Q, zoom, residuals, inliers)."""
+    Q = _kabsch_nb(bj, bi)
+    inl = _residuals_nb(Q, pj, pi, K, K_inv, 1.0) < 2.0 * threshold_px
+    zoom = 1.0
+    r = np.zeros(pj.shape[0])
+    if inl.sum() < min_inliers:
+        return False, Q, zoom, r, inl
+    for it in range(3):
+        Q, zoom = _rotation_zoom_nb(xi[inl], xj[inl], 4 if it == 0 else 2, zoom)
+        r = _residuals_nb(Q, pj, pi, K, K_inv, zoom)
+        sigma = max(0.02, 1.4826 * np.median(r[inl]) / 1.1774)  # per-axis noise, robust
+        inl = r < min(threshold_px, max(4.0 * sigma, 0.1))
+        if inl.sum() < min_inliers:
+            return False, Q, zoom, r, inl
+    Q, zoom = _rotation_zoom_nb(xi[inl], xj[inl], 2, zoom)
+    r = _residuals_nb(Q, pj, pi, K, K_inv, zoom)
+    return True, Q, zoom, r, inl
+
+
 def rotation_from_correspondences(
     pi: np.ndarray, pj: np.ndarray, K: np.ndarray, *, threshold_px: float = 1.0
 ) -> PairRotation:
@@ -298,21 +369,9 @@ def rotation_from_correspondences(
     bi, bj = bearings(pi, K_inv), bearings(pj, K_inv)
     xi = np.column_stack([pi, np.ones(n)]) @ K_inv.T
     xj = np.column_stack([pj, np.ones(n)]) @ K_inv.T
-    Q = kabsch(bj, bi)
-    inl = rotation_residuals(Q, pj, pi, K) < 2.0 * threshold_px
-    if inl.sum() < MIN_INLIERS:
+    ok, Q, _, r, inl = _fit_rotation_zoom(pi, pj, xi, xj, bi, bj, K, K_inv, float(threshold_px), MIN_INLIERS)
+    if not ok:
         return _failed(int(inl.sum()), n)
-    zoom = 1.0
-    for it in range(3):
-        # Later rounds start from the previous zoom (it changes little once outliers are out).
-        Q, zoom = rotation_zoom(xi[inl], xj[inl], 4 if it == 0 else 2, zoom)
-        r = rotation_residuals(Q, pj, pi, K, zoom)
-        sigma = max(0.02, 1.4826 * float(np.median(r[inl])) / 1.1774)  # per-axis noise, robust
-        inl = r < min(threshold_px, max(4.0 * sigma, 0.1))
-        if inl.sum() < MIN_INLIERS:
-            return _failed(int(inl.sum()), n)
-    Q, zoom = rotation_zoom(xi[inl], xj[inl], 2, zoom)
-    r = rotation_residuals(Q, pj, pi, K, zoom)
     n_rot = int(inl.sum())
     res_rot = float(np.sqrt(np.mean(r[inl] ** 2) / 2.0))
     rot = PairRotation(Q, n_rot, n, "rotation", True, _information(Q, bj[inl], res_rot / focal), res_rot)

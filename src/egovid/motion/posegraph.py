@@ -97,18 +97,19 @@ def optimize(
     if n == 1 or not edges:
         return R
     infos = [e.information() for e in edges]
+    Q = project_to_so3(np.stack([e.Q for e in edges]))  # GTSAM wants exact rotations
     scales: dict[str, float] = {}
     if calibrate:
-        R = _solve(n, edges, infos, R, ("huber",))
+        R = _solve(n, edges, Q, infos, R, ("huber",))
         for _ in range(2):
             step = _group_scales(edges, infos, R)
             infos = [inf / step.get(e.key, 1.0) for e, inf in zip(edges, infos, strict=True)]
             for k, v in step.items():
                 scales[k] = scales.get(k, 1.0) * v
-            R = _solve(n, edges, infos, R, ("huber",))
-        R = _solve(n, edges, infos, R, ("cauchy",), robust_k)
+            R = _solve(n, edges, Q, infos, R, ("huber",))
+        R = _solve(n, edges, Q, infos, R, ("cauchy",), robust_k)
     else:
-        R = _solve(n, edges, infos, R, ("huber", "cauchy"), robust_k)
+        R = _solve(n, edges, Q, infos, R, ("huber", "cauchy"), robust_k)
     if report is not None:
         report["noise_scale"] = {k: float(v) for k, v in sorted(scales.items())}
     return R
@@ -159,7 +160,9 @@ def _group_scales(edges: list[Edge], infos: list[np.ndarray], R: np.ndarray) -> 
     return out
 
 
-def _solve(n: int, edges: list[Edge], infos: list[np.ndarray], R0: np.ndarray, kernels, robust_k: float = 3.0):
+def _solve(
+    n: int, edges: list[Edge], Q: np.ndarray, infos: list[np.ndarray], R0: np.ndarray, kernels, robust_k: float = 3.0
+):
     import gtsam
 
     values = gtsam.Values()
@@ -175,18 +178,18 @@ def _solve(n: int, edges: list[Edge], infos: list[np.ndarray], R0: np.ndarray, k
             if name == "huber"
             else gtsam.noiseModel.mEstimator.Cauchy.Create(robust_k)
         )
-        graph = _graph(edges, infos, kernel)
+        graph = _graph(edges, Q, infos, kernel)
         values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
     return np.stack([values.atRot3(k).matrix() for k in range(n)])
 
 
-def _graph(edges: list[Edge], infos: list[np.ndarray], kernel):
+def _graph(edges: list[Edge], Q: np.ndarray, infos: list[np.ndarray], kernel):
     import gtsam
 
     graph = gtsam.NonlinearFactorGraph()
     graph.add(gtsam.PriorFactorRot3(0, gtsam.Rot3(np.eye(3)), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
-    for e, info in zip(edges, infos, strict=True):
+    for e, q, info in zip(edges, Q, infos, strict=True):
         base = gtsam.noiseModel.Gaussian.Information(info)
         model = gtsam.noiseModel.Robust.Create(kernel, base)
-        graph.add(gtsam.BetweenFactorRot3(e.i, e.j, gtsam.Rot3(project_to_so3(e.Q)), model))
+        graph.add(gtsam.BetweenFactorRot3(e.i, e.j, gtsam.Rot3(q), model))
     return graph

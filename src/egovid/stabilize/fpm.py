@@ -96,22 +96,34 @@ def pure_fpm(anchors: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def _ease(anchors: np.ndarray, values: np.ndarray, k: np.ndarray, s: np.ndarray, n: int) -> np.ndarray:
-    out = np.empty(n)
+def ease_into(
+    anchors: np.ndarray, values: np.ndarray, k: np.ndarray, s: np.ndarray, lo: int, hi: int, out: np.ndarray
+) -> None:
+    """Frames ``lo`` to ``hi - 1`` of :func:`ease` into ``out`` (length ``hi - lo``); numba, so
+    the optimiser's objective (:mod:`egovid.stabilize.optimize`) can draw only the frames a
+    block of anchors moves."""
     for i in range(anchors.shape[0] - 1):
         a, b = anchors[i], anchors[i + 1]
+        last = b + 1 if i == anchors.shape[0] - 2 else b
+        if last <= lo or a >= hi:
+            continue
         va, vb = values[i], values[i + 1]
         half = 0.5 * (b - a)
         mid = 0.5 * (a + b)
-        last = b + 1 if i == anchors.shape[0] - 2 else b
-        for t in range(a, last):
+        for t in range(max(a, lo), min(last, hi)):
             frac = (t - a) / (b - a) if b > a else 0.0
             p = va + (vb - va) * frac  # pure FPM
             u = (t - mid) / half if half > 0 else 0.0
             near = va if t < mid else vb
-            out[t] = p + s[i] * abs(u) ** k[i] * (near - p)
+            out[t - lo] = p + s[i] * abs(u) ** k[i] * (near - p)
     if anchors.shape[0] == 1:
         out[:] = values[0]
+
+
+@njit(cache=True)
+def _ease(anchors: np.ndarray, values: np.ndarray, k: np.ndarray, s: np.ndarray, n: int) -> np.ndarray:
+    out = np.empty(n)
+    ease_into(anchors, values, k, s, 0, n, out)
     return out
 
 

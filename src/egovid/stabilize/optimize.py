@@ -24,21 +24,25 @@ the model's 30 fps (the caller resamples; :func:`egovid.stabilize.pipeline.plan_
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 from scipy.optimize import differential_evolution
 
+from egovid.perception.intervals import _intervals
 from egovid.perception.model import MODEL_FPS, ViewingModel
-from egovid.perception.score import AXES, axis_windows
+from egovid.perception.score import _COMPONENTS, AXES, AXIS_COMPONENTS
+from egovid.perception.ve import _sve_windows, _ve_windows
 from egovid.stabilize.fpm import (
     AnchorGeometry,
     anchor_geometry,
     ease,
+    ease_into,
     motion_anchors,
     motion_trend,
-    pure_fpm,
     reduce_anchors,
 )
 from egovid.stabilize.lut import EasingLUT
@@ -81,6 +85,119 @@ class AxisPlan:
     notes: list[str] = field(default_factory=list)
 
 
+@njit(cache=True)
+def _pairwise_sum(x: np.ndarray) -> float:
+    """Sum of a 1-D array in NumPy's pairwise order, so that means match ``np.mean`` bit for bit."""
+    n = x.shape[0]
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += x[i]
+        return res
+    if n <= 128:
+        r = x[:8].copy()
+        i = 8
+        while i < n - (n % 8):
+            for j in range(8):
+                r[j] += x[i + j]
+            i += 8
+        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            res += x[i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_sum(x[:n2]) + _pairwise_sum(x[n2:])
+
+
+@njit(cache=True)
+def _axis_rms(a, col, kinds, shifts, fovs, halfs, ps, thr, n1, sacc, sve):  # pragma: no cover - numba
+    """RMS of one axis's VE/SVE windows of the (m, 3) motion ``a`` (degrees, model rate): the
+    same steps as :func:`egovid.perception.score.axis_windows` (intervals of column ``col``,
+    shifted into world coordinates by column ``shifts[c]``, windows, the smaller over the
+    components), in one compiled call for the optimiser's inner loop."""
+    theta = np.deg2rad(a[:, col])
+    out = np.empty(0)
+    for c in range(kinds.shape[0]):
+        iv = np.rad2deg(_intervals(kinds[c], theta, halfs[c], ps[c], thr))
+        m = iv.shape[0]
+        lo = iv[:, 0] + a[:m, shifts[c]]
+        hi = iv[:, 1] + a[:m, shifts[c]]
+        w = _sve_windows(lo, hi, fovs[c], n1, False) if sve else _ve_windows(lo, hi, fovs[c], n1, sacc)
+        out = w if c == 0 else np.minimum(out, w)
+    if out.shape[0] == 0:
+        return 1.0
+    return math.sqrt(_pairwise_sum(out * out) / out.shape[0])
+
+
+@njit(cache=True)
+def _interp_into(anchors: np.ndarray, values: np.ndarray, lo: int, hi: int, out: np.ndarray) -> None:
+    """Frames ``lo`` to ``hi - 1`` of the zigzag through the anchors (``np.interp``'s arithmetic,
+    so equal to :func:`egovid.stabilize.fpm.pure_fpm` bit for bit)."""
+    last = anchors.shape[0] - 1
+    j = 0
+    for t in range(lo, hi):
+        x = float(t)
+        while j < last and anchors[j + 1] <= x:
+            j += 1
+        if j == last or anchors[j] == x:
+            out[t - lo] = values[j]
+        else:
+            slope = (values[j + 1] - values[j]) / (anchors[j + 1] - anchors[j])
+            out[t - lo] = slope * (x - anchors[j]) + values[j]
+
+
+@njit(cache=True)
+def _objective(
+    D, values, direction, room, movable, anchors, seg_len, log_amps, table,
+    ctx, lo, hi, col, kinds, shifts, fovs, halfs, ps, thr, n1, sacc, sve, tie,
+):  # fmt: skip  # pragma: no cover - numba
+    """Eq. 9.4 without the FPMR term, on frames [lo, hi) of the (n, 3) motion ``ctx`` whose
+    column ``col`` is planned: anchors reduced by ``D`` (eq. 9.1 towards the trend), easing
+    looked up in ``table`` (nearest log-amplitude in ``log_amps``; segment-length cells
+    ``seg_len``), the eased and the pure motion drawn on those frames only and scored by
+    :func:`_axis_rms`, and the tie-break towards reduction (see :meth:`AxisModel.objective`)."""
+    T = anchors.shape[0]
+    v = np.empty(T)
+    for i in range(T):
+        d = min(max(D[i], 0.0), 1.0)
+        v[i] = values[i] + direction[i] * d * room[i]
+    k = np.empty(max(T - 1, 0))
+    s = np.empty(max(T - 1, 0))
+    for i in range(T - 1):
+        la = math.log(max(abs(v[i + 1] - v[i]), 1e-6))
+        best = 0
+        dist = abs(la - log_amps[0])
+        for j in range(1, log_amps.shape[0]):
+            dj = abs(la - log_amps[j])
+            if dj < dist:
+                best, dist = j, dj
+        k[i] = table[best, seg_len[i], 0]
+        s[i] = table[best, seg_len[i], 1]
+    a = ctx[lo:hi].copy()
+    line = np.empty(hi - lo)
+    ease_into(anchors, v, k, s, lo, hi, line)
+    a[:, col] = line
+    j_val = 1.0 - _axis_rms(a, col, kinds, shifts, fovs, halfs, ps, thr, n1, sacc, sve)
+    _interp_into(anchors.astype(np.float64), v, lo, hi, line)
+    a[:, col] = line
+    j_val += _axis_rms(a, col, kinds, shifts, fovs, halfs, ps, thr, n1, sacc, sve)
+    count = 0
+    for i in range(T):
+        if movable[i]:
+            count += 1
+    if count:
+        kept = np.empty(count)
+        c = 0
+        for i in range(T):
+            if movable[i]:
+                kept[c] = 1.0 - min(max(D[i], 0.0), 1.0)
+                c += 1
+        j_val += tie * (_pairwise_sum(kept) / count)
+    return j_val
+
+
 class AxisModel:
     """Everything needed to turn reduction rates into an edited motion and score it.
 
@@ -119,6 +236,20 @@ class AxisModel:
         if big.any():
             self.alpha[big] = np.abs(dtheta[big]) / np.abs(dtheta[big]).sum()
         self.dtheta = dtheta
+        # What the compiled objective needs: the easing table's cells, each component's geometry.
+        table = self.lut.tables[self.kind]
+        self._log_amps = np.log(self.lut.amplitudes)
+        self._seg_len = np.abs((np.diff(self.anchors) / MODEL_FPS)[:, None] - self.lut.durations[None, :]).argmin(1)
+        self._table = np.ascontiguousarray(table, dtype=np.float64)
+        comps = [_COMPONENTS[c] for c in AXIS_COMPONENTS[axis]]
+        fovs = [hfov if side == "h" else vfov for _, _, side, _ in comps]
+        self._kinds = np.array([0 if geometry == "yaw" else 1 for _, geometry, _, _ in comps], dtype=np.int64)
+        self._shifts = np.array([shift for *_, shift in comps], dtype=np.int64)
+        self._fovs = np.array(fovs, dtype=np.float64)
+        self._halfs = np.array([math.radians(f) / 2.0 for f in fovs])
+        self._ps = np.array([1.0 / model.d_over_f if k == 0 else model.d_over_f for k in self._kinds])
+        self._thr = math.radians(model.pe_threshold())
+        self._movable = self.geom.room > 0
 
     def values(self, D: np.ndarray) -> np.ndarray:
         return reduce_anchors(self.geom, D)
@@ -132,31 +263,36 @@ class AxisModel:
         k, s = self.shape(v)
         return ease(self.anchors, v, k, s, self.n)
 
-    def score(self, theta: np.ndarray, lo: int = 0) -> float:
-        """RMS of this axis's VE (or SVE) windows for ``theta`` on frames ``lo`` onwards."""
-        a = self.context[lo : lo + len(theta)].copy()
-        a[:, self.col] = theta
-        w = axis_windows(a, self.axis, self.hfov, self.vfov, self.model, self.opts.method)
-        return float(np.sqrt(np.mean(w * w))) if len(w) else 1.0
-
     def objective(self, D: np.ndarray, lo: int = 0, hi: int | None = None) -> float:
-        """Eq. 9.4 on frames [lo, hi)."""
-        v = self.values(D)
-        k, s = self.shape(v)
-        eased = ease(self.anchors, v, k, s, self.n)[lo:hi]
-        pure = pure_fpm(self.anchors, v, self.n)[lo:hi]
-        j = 1.0 - self.score(eased, lo) + self.score(pure, lo)
-        # VE saturates near 1 and the pure-FPM VE has a plateau (Fig. 9.3b), so J is often flat in
-        # D; a small preference for reduction resolves the tie towards the thesis' "point B", the
-        # most stable motion that still keeps the first-person feeling.
-        movable = self.geom.room > 0
-        if movable.any():
-            j += self.opts.tie_break * float(np.mean(1.0 - np.clip(D[movable], 0.0, 1.0)))
+        """Eq. 9.4 on frames [lo, hi) (one compiled call, :func:`_objective`; the eased and pure
+        motions are drawn on those frames only).
+
+        VE saturates near 1 and the pure-FPM VE has a plateau (Fig. 9.3b), so J is often flat in
+        D; a small preference for reduction (``tie_break``) resolves the tie towards the thesis'
+        "point B", the most stable motion that still keeps the first-person feeling."""
+        hi = self.n if hi is None else min(hi, self.n)
+        j = _objective(
+            np.asarray(D, dtype=np.float64),
+            self.geom.values, self.geom.direction, self.geom.room, self._movable,
+            self.anchors, self._seg_len, self._log_amps, self._table,
+            self.context, int(lo), int(hi), self.col,
+            self._kinds, self._shifts, self._fovs, self._halfs, self._ps, self._thr,
+            self.model.window_frames, self.model.saccade_frames, self.opts.method == "sve", self.opts.tie_break,
+        )  # fmt: skip
         if self.alpha.any():
+            v = self.values(D)
             with np.errstate(divide="ignore", invalid="ignore"):
                 dfpmr = np.where(self.dtheta != 0, 1.0 - np.diff(v) / self.dtheta, 0.0)
             j += float(self.alpha @ dfpmr)
         return j
+
+
+def load_kernels() -> None:
+    """Load the compiled objective and the easing table now (~0.3 s the first time in a process),
+    so that a planner forked afterwards inherits them instead of loading them again."""
+    theta = np.linspace(0.0, 1.0, 16)
+    am = AxisModel(theta, "yaw", 90.0, 60.0, ViewingModel(), OptimizeOptions())
+    am.objective(np.zeros(len(am.anchors)))
 
 
 def optimize_axis(

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -37,7 +38,7 @@ from egovid.io.video import probe
 from egovid.perception.model import ViewingModel, from_model_rate, to_model_rate
 from egovid.perception.score import AXES, check_angles
 from egovid.stabilize.measure import MotionScores, VideoMeasures, measure_video, motion_scores
-from egovid.stabilize.optimize import AxisPlan, OptimizeOptions, optimize_axis
+from egovid.stabilize.optimize import AxisPlan, OptimizeOptions, load_kernels, optimize_axis
 from egovid.stabilize.path import FittedPath, fit_path
 from egovid.stabilize.render import RenderStats, content_masks, homographies, render_stabilized
 
@@ -139,6 +140,7 @@ def plan_motion(
     if not keep_roll:
         edited30[:, 2] = np.median(angles[:, 2])
     plans: dict[str, AxisPlan] = {}
+    load_kernels()  # before the fork: the side process inherits them
     # Yaw and pitch are planned independently (each axis's windows see only its own angle), so
     # pitch runs in a forked process while yaw runs here: the optimiser is single-threaded
     # Python and the second core would idle. Roll waits for both (its intervals move with them).
@@ -197,8 +199,13 @@ def stabilize(
     model = model or ViewingModel()
     opts = opts or OptimizeOptions(method=method)
     if motion is None:
+        # The planner's compiled objective takes ~0.5 s to load; the motion stage leaves the
+        # interpreter free most of the time (OpenCV and compiled fits run without the GIL).
+        loader = threading.Thread(target=load_kernels, name="load-planner", daemon=True)
+        loader.start()
         cb = (lambda d, t: progress("motion", d, t)) if progress else None
         motion = estimate_motion(src, intr, progress=cb).trajectory
+        loader.join()  # done long before; no thread may hold a lock when the planner forks
     t1 = time.perf_counter()
     angles = motion.euler()
     fps = info.fps

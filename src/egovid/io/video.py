@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from fractions import Fraction
@@ -34,6 +35,7 @@ from egovid.io.files import commit_temp, temp_sibling, track_temp, untrack_temp
 _FIX_VIDEO = "give a video file FFmpeg can decode (e.g. MP4/H.264, MKV, WebM)"
 _TRUNCATED_OK: dict[Path, int] = {}  # truncated videos a caller accepted -> frames they really have
 _PROBED: dict[tuple, VideoInfo] = {}  # recent probe() results by file identity and state (see probe)
+_PROBED_LOCK = threading.Lock()  # probe() runs in worker threads too (dashcam ingest, voeval cells)
 
 
 # FFmpeg's enum values (libavutil/pixfmt.h) by the names ffprobe prints.
@@ -258,14 +260,16 @@ def probe(path: str | os.PathLike, *, allow_truncated: bool = False) -> VideoInf
         key += (allow_truncated, real in _TRUNCATED_OK)
     except OSError:
         key = None  # _open() says what is wrong
-    info = _PROBED.get(key) if key is not None else None
+    with _PROBED_LOCK:
+        info = _PROBED.get(key) if key is not None else None
     if info is not None:
         return replace(info, path=Path(path))  # as this caller named it
     info = _probe(path, allow_truncated)
     if key is not None:
-        _PROBED[key] = info
-        while len(_PROBED) > 32:
-            _PROBED.pop(next(iter(_PROBED)))
+        with _PROBED_LOCK:
+            _PROBED[key] = info
+            while len(_PROBED) > 32:
+                del _PROBED[next(iter(_PROBED))]
     return info
 
 

@@ -48,7 +48,7 @@ from egovid.errors import EgovidError
 
 LOOKAHEAD = 24  # frames whose light chooses the baseline (one random-access period)
 LIGHT_EVERY = 4  # after the first LOOKAHEAD frames, every 4th frame's light counts
-QUEUE = 6  # frames in flight between the producer and the encoder
+QUEUE = 12  # frames in flight between the producer and the encoder (6 left the encoder waiting twice as long)
 
 
 def _illumination(gray: np.ndarray) -> np.ndarray:

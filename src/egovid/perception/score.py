@@ -13,14 +13,17 @@ shifted by yaw along the horizontal field of view and by pitch along the vertica
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from egovid.errors import EgovidError
-from egovid.perception.intervals import roll_intervals, yaw_pitch_intervals
+from egovid.perception.intervals import _intervals, roll_intervals, yaw_pitch_intervals
 from egovid.perception.model import MODEL_FPS, ViewingModel, to_model_rate
-from egovid.perception.ve import sve_windows, ve_windows
+from egovid.perception.ve import _sve_windows, _ve_windows, sve_windows, ve_windows
 
 AXES = ("yaw", "pitch", "roll")
 METHODS = ("ve", "sve")
@@ -121,6 +124,55 @@ def windows(iv: np.ndarray, fov: float, method: str, model: ViewingModel, sve_va
     return sve_windows(iv[:, 0], iv[:, 1], fov, model.window_frames, sve_variant)
 
 
+class AxisGeometry(NamedTuple):
+    """What the compiled rule needs for one axis: its angle column and, per component of
+    :data:`AXIS_COMPONENTS`, interval kind (0 yaw/pitch, 1 roll), shift column, field of view
+    (degrees), half field of view (radians) and ``p`` of eq. 8.1–8.3; the PE threshold (radians)."""
+
+    col: int
+    kinds: np.ndarray
+    shifts: np.ndarray
+    fovs: np.ndarray
+    halfs: np.ndarray
+    ps: np.ndarray
+    thr: float
+
+
+def axis_geometry(axis: str, hfov: float, vfov: float, model: ViewingModel = ViewingModel()) -> AxisGeometry:
+    """The per-component constants of one axis's score (fields of view in degrees)."""
+    comps = [_COMPONENTS[c] for c in AXIS_COMPONENTS[axis]]
+    fovs = [hfov if side == "h" else vfov for _, _, side, _ in comps]
+    kinds = np.array([0 if geometry == "yaw" else 1 for _, geometry, _, _ in comps], dtype=np.int64)
+    return AxisGeometry(
+        comps[0][0],
+        kinds,
+        np.array([shift for *_, shift in comps], dtype=np.int64),
+        np.array(fovs, dtype=np.float64),
+        np.array([math.radians(f) / 2.0 for f in fovs]),
+        np.array([1.0 / model.d_over_f if k == 0 else model.d_over_f for k in kinds]),
+        math.radians(model.pe_threshold()),
+    )
+
+
+@njit(cache=True)
+def axis_windows_kernel(a, col, kinds, shifts, fovs, halfs, ps, thr, n1, sacc, sve, literal):  # pragma: no cover
+    """Compiled body of :func:`axis_windows` for the (K, 3) motion ``a`` (degrees, model rate) and
+    the constants of :func:`axis_geometry`: intervals of column ``col``, shifted by column
+    ``shifts[c]``, VE (``sve`` False; saccade ``sacc`` frames) or SVE windows of ``n1`` intervals
+    (``literal``: eq. 8.11 as written), the smaller over the components. The stabiliser's objective
+    calls it in its inner loop."""
+    theta = np.deg2rad(a[:, col])
+    out = np.empty(0)
+    for c in range(kinds.shape[0]):
+        iv = np.rad2deg(_intervals(kinds[c], theta, halfs[c], ps[c], thr))
+        m = iv.shape[0]
+        lo = iv[:, 0] + a[:m, shifts[c]]
+        hi = iv[:, 1] + a[:m, shifts[c]]
+        w = _sve_windows(lo, hi, fovs[c], n1, literal) if sve else _ve_windows(lo, hi, fovs[c], n1, sacc)
+        out = w if c == 0 else np.minimum(out, w)
+    return out
+
+
 def axis_windows(
     angles: np.ndarray,
     axis: str,
@@ -132,13 +184,15 @@ def axis_windows(
 ) -> np.ndarray:
     """Per-window VE/SVE of one axis of an (K, 3) motion already at the model's 30 fps (the one
     intervals -> shift -> windows rule; see the module docstring). Only the components this axis
-    needs are computed, so the stabiliser can call it in its inner loop."""
-    out = None
-    for comp in AXIS_COMPONENTS[axis]:
-        iv, fov = component_intervals(angles, comp, hfov, vfov, model)
-        w = windows(iv, fov, method, model, sve_variant)
-        out = w if out is None else np.minimum(out, w)
-    return out
+    needs are computed."""
+    if method not in METHODS or sve_variant not in ("coverage", "thesis"):
+        raise EgovidError(f"unknown scoring method {method!r} / {sve_variant!r}", "use ve or sve (coverage or thesis)")
+    g = axis_geometry(axis, hfov, vfov, model)
+    a = np.ascontiguousarray(angles, dtype=np.float64)
+    return axis_windows_kernel(
+        a, g.col, g.kinds, g.shifts, g.fovs, g.halfs, g.ps, g.thr,
+        model.window_frames, model.saccade_frames, method == "sve", sve_variant == "thesis",
+    )  # fmt: skip
 
 
 def check_angles(angles: np.ndarray, fps: float, model: ViewingModel) -> np.ndarray:

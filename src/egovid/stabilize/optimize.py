@@ -32,10 +32,8 @@ import numpy as np
 from numba import njit
 from scipy.optimize import differential_evolution
 
-from egovid.perception.intervals import _intervals
 from egovid.perception.model import MODEL_FPS, ViewingModel
-from egovid.perception.score import _COMPONENTS, AXES, AXIS_COMPONENTS
-from egovid.perception.ve import _sve_windows, _ve_windows
+from egovid.perception.score import AXES, axis_geometry, axis_windows_kernel
 from egovid.stabilize.fpm import (
     AnchorGeometry,
     anchor_geometry,
@@ -113,19 +111,9 @@ def _pairwise_sum(x: np.ndarray) -> float:
 
 @njit(cache=True)
 def _axis_rms(a, col, kinds, shifts, fovs, halfs, ps, thr, n1, sacc, sve):  # pragma: no cover - numba
-    """RMS of one axis's VE/SVE windows of the (m, 3) motion ``a`` (degrees, model rate): the
-    same steps as :func:`egovid.perception.score.axis_windows` (intervals of column ``col``,
-    shifted into world coordinates by column ``shifts[c]``, windows, the smaller over the
-    components), in one compiled call for the optimiser's inner loop."""
-    theta = np.deg2rad(a[:, col])
-    out = np.empty(0)
-    for c in range(kinds.shape[0]):
-        iv = np.rad2deg(_intervals(kinds[c], theta, halfs[c], ps[c], thr))
-        m = iv.shape[0]
-        lo = iv[:, 0] + a[:m, shifts[c]]
-        hi = iv[:, 1] + a[:m, shifts[c]]
-        w = _sve_windows(lo, hi, fovs[c], n1, False) if sve else _ve_windows(lo, hi, fovs[c], n1, sacc)
-        out = w if c == 0 else np.minimum(out, w)
+    """RMS of one axis's VE/SVE windows of the (m, 3) motion ``a`` (degrees, model rate), by
+    :func:`egovid.perception.score.axis_windows_kernel`; the mean in NumPy's summation order."""
+    out = axis_windows_kernel(a, col, kinds, shifts, fovs, halfs, ps, thr, n1, sacc, sve, False)
     if out.shape[0] == 0:
         return 1.0
     return math.sqrt(_pairwise_sum(out * out) / out.shape[0])
@@ -241,14 +229,7 @@ class AxisModel:
         self._log_amps = np.log(self.lut.amplitudes)
         self._seg_len = np.abs((np.diff(self.anchors) / MODEL_FPS)[:, None] - self.lut.durations[None, :]).argmin(1)
         self._table = np.ascontiguousarray(table, dtype=np.float64)
-        comps = [_COMPONENTS[c] for c in AXIS_COMPONENTS[axis]]
-        fovs = [hfov if side == "h" else vfov for _, _, side, _ in comps]
-        self._kinds = np.array([0 if geometry == "yaw" else 1 for _, geometry, _, _ in comps], dtype=np.int64)
-        self._shifts = np.array([shift for *_, shift in comps], dtype=np.int64)
-        self._fovs = np.array(fovs, dtype=np.float64)
-        self._halfs = np.array([math.radians(f) / 2.0 for f in fovs])
-        self._ps = np.array([1.0 / model.d_over_f if k == 0 else model.d_over_f for k in self._kinds])
-        self._thr = math.radians(model.pe_threshold())
+        self._axis = axis_geometry(axis, hfov, vfov, model)
         self._movable = self.geom.room > 0
 
     def values(self, D: np.ndarray) -> np.ndarray:
@@ -276,7 +257,7 @@ class AxisModel:
             self.geom.values, self.geom.direction, self.geom.room, self._movable,
             self.anchors, self._seg_len, self._log_amps, self._table,
             self.context, int(lo), int(hi), self.col,
-            self._kinds, self._shifts, self._fovs, self._halfs, self._ps, self._thr,
+            self._axis.kinds, self._axis.shifts, self._axis.fovs, self._axis.halfs, self._axis.ps, self._axis.thr,
             self.model.window_frames, self.model.saccade_frames, self.opts.method == "sve", self.opts.tie_break,
         )  # fmt: skip
         if self.alpha.any():

@@ -377,6 +377,9 @@ class _Digests:
                 self.run_h = hashlib.sha256()
 
     def add(self, rec: np.ndarray) -> None:
+        for f in self.queued:
+            if f.done():
+                f.result()  # a hash that failed fails the segment here, not silently
         self.queued = [f for f in self.queued if not f.done()]
         while len(self.queued) > 4:
             self.queued.pop(0).result()

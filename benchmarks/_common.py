@@ -39,6 +39,19 @@ def timed(fn, *args, **kwargs):
     return out, time.perf_counter() - t
 
 
+def stolen_seconds() -> float | None:
+    """CPU seconds the hypervisor has taken from this virtual machine since boot, all CPUs
+    (/proc/stat's steal column; None where there is none). The difference over a run says how much
+    of its wall time other guests of the same host had: speed figures from runs with a few seconds
+    stolen are not this machine's."""
+    try:
+        with open("/proc/stat", encoding="ascii") as fh:
+            fields = fh.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def report(name: str, figures: dict) -> None:
     """Print figures and append them to bench-output/results.jsonl."""
     print(json.dumps({"benchmark": name, **figures}, indent=2, default=float))

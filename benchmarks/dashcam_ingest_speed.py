@@ -14,8 +14,14 @@ input decoded by ffmpeg. ffmpeg codes every frame from the one before (libvpx's 
 egovid its anchors-every-8 structure with the older drive injected, plus the alignment, the
 verification decode and the digests.
 
+The joint drive is ingested EGOVID_BENCH_REPEATS times (default 3), each time into a copy of the
+archive holding only the root drive; the figure is the median, with every run and the CPU seconds
+the hypervisor stole during it (this machine is a virtual one whose speed moves with its
+neighbours). The matcher's one-time numba compilation (cached on disk for every later process) is
+done in a separate process first; loading it into this process is part of the first joint run.
+
 Env: EGOVID_BENCH_SIZES (default 1280x720,1920x1080), EGOVID_BENCH_PRESETS (default realtime,
-balanced,archive), EGOVID_BENCH_SECONDS (drive length, default 6).
+balanced,archive), EGOVID_BENCH_SECONDS (drive length, default 6), EGOVID_BENCH_REPEATS (default 3).
 """
 
 from __future__ import annotations
@@ -24,22 +30,24 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 from egovid.dashcam.ingest import IngestOptions, ingest
 from egovid.dashcam.ingest.options import PRESETS
-from egovid.dashcam.store import Archive
+from egovid.dashcam.store import Archive, open_archive
 from egovid.io.video import count_frames
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
-from _common import ROOT, cache_dir, report
+from _common import ROOT, cache_dir, report, stolen_seconds
 
 SIZES = [
     tuple(int(v) for v in s.split("x")) for s in os.environ.get("EGOVID_BENCH_SIZES", "1280x720,1920x1080").split(",")
 ]
 WANTED = os.environ.get("EGOVID_BENCH_PRESETS", ",".join(PRESETS)).split(",")
 SECONDS = float(os.environ.get("EGOVID_BENCH_SECONDS", "6"))
+REPEATS = int(os.environ.get("EGOVID_BENCH_REPEATS", "3"))
 TARGET_FPS = {(1280, 720): 30.0, (1920, 1080): 15.0}
 FFMPEG_MAX_SPEED = 8  # ffmpeg's libvpx-vp9 -cpu-used range ends at 8 (libvpx's realtime mode goes to 9)
 
@@ -81,6 +89,32 @@ def ffmpeg_vp9(video: Path, opts: IngestOptions, out: Path) -> dict:
     return {"fps": n / s, "seconds": s, "bytes": out.stat().st_size, "cpu_used": speed}
 
 
+def compile_matcher() -> None:
+    """numba's one-time compilation of the alignment's matcher, in a process of its own (it is
+    cached on disk, as on any installation after its first joint ingest)."""
+    code = (
+        "import numpy as np; from egovid.dashcam.align import cross_check_matches as m; "
+        "z = np.zeros((8, 32), np.uint8); m(z, z)"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def joint_runs(folder: Path, preset: str, video: Path, opts: IngestOptions) -> list[tuple]:
+    """(report, stolen CPU seconds) of REPEATS ingests of ``video`` into copies of the archive
+    holding only the root drive."""
+    runs = []
+    for _ in range(REPEATS):
+        arch = folder / f"archive-{preset}-joint"
+        shutil.rmtree(arch, ignore_errors=True)
+        shutil.copytree(folder / f"archive-{preset}", arch)
+        s0 = stolen_seconds()
+        with open_archive(arch) as ar:
+            rep = ingest(ar, video, None, opts)
+        s1 = stolen_seconds()
+        runs.append((rep, None if s0 is None or s1 is None else round(s1 - s0, 2)))
+    return runs
+
+
 def bd_rates() -> dict:
     """Each preset's BD-rate per set through the archive's own ingest (the copy the docs quote)."""
     p = ROOT / "docs" / "figures" / "dashcam_bdrate_ingest.json"
@@ -93,8 +127,9 @@ def bd_rates() -> dict:
 def main() -> None:
     if shutil.which("ffmpeg") is None:
         raise SystemExit("ffmpeg is needed (make test installs it)")
-    results: dict = {"drive_seconds": SECONDS, "cpus": os.cpu_count(), "sizes": {}}
+    results: dict = {"drive_seconds": SECONDS, "repeats": REPEATS, "cpus": os.cpu_count(), "sizes": {}}
     bd = bd_rates()
+    compile_matcher()
     for w, h in SIZES:
         root_video, joint_video = drives(w, h)
         folder = root_video.parent
@@ -105,11 +140,15 @@ def main() -> None:
             shutil.rmtree(arch, ignore_errors=True)
             ar = Archive.create(arch)
             r0 = ingest(ar, root_video, None, opts)
-            r1 = ingest(ar, joint_video, None, opts)
+            ar.close()
+            runs = joint_runs(folder, preset, joint_video, opts)
+            r1 = sorted(runs, key=lambda r: r[0].fps)[len(runs) // 2][0]  # the median run
             peer = ffmpeg_vp9(joint_video, opts, folder / f"ffmpeg-{preset}.webm")
             row = {
                 "root_fps": r0.fps,
                 "joint_fps": r1.fps,
+                "joint_fps_runs": [round(r.fps, 2) for r, _ in runs],
+                "joint_stolen_seconds_runs": [s for _, s in runs],
                 "joint_mode": [p.mode for p in r1.pieces],
                 "joint_bytes": sum(p.bytes for p in r1.pieces),
                 "root_stage_seconds": {k: round(v, 3) for k, v in r0.stage_seconds.items()},
@@ -125,7 +164,8 @@ def main() -> None:
                 row["joint_meets_target"] = row["joint_fps"] >= target
             rows[preset] = row
             print(
-                f"{w}x{h} {preset}: root {r0.fps:.1f} fps, joint {row['joint_fps']:.1f} fps "
+                f"{w}x{h} {preset}: root {r0.fps:.1f} fps, joint {row['joint_fps']:.1f} fps (median of "
+                f"{row['joint_fps_runs']}, stolen s {row['joint_stolen_seconds_runs']}) "
                 f"({row['joint_mode']}), ffmpeg {peer['fps']:.1f} fps; stages {row['joint_stage_seconds']}",
                 flush=True,
             )

@@ -255,3 +255,61 @@ def test_read_ahead_keeps_order_hands_errors_on_and_stops_when_closed():
     assert next(it) == 0
     it.close()
     assert closed.is_set()  # the thread stopped and closed the source before close() returned
+
+
+def test_the_older_drive_read_while_the_baseline_is_chosen_changes_nothing_or_is_dropped(tmp_path, monkeypatch):
+    """The older drive the first frame's light points to is decoded (and its features computed)
+    while the piece's first 24 frames choose the baseline. Taken: the joint segment is bit for bit
+    the one coded without it. The choice disagreeing: it is dropped, its threads stop, and the piece
+    is coded as the choice says."""
+    import shutil
+    import threading
+
+    from egovid.dashcam.ingest import ingest
+    from egovid.dashcam.ingest import piece as piece_mod
+    from egovid.dashcam.store import Archive, open_archive
+    from egovid.synth.drive import DriveSpec, Light, render_drive
+
+    noon = Light.preset("noon")
+    leg = [("main", 100.0, 150.0)]
+    for name, spec in {
+        "old": DriveSpec(legs=leg, cruise=10.0, seed=5, light=noon),
+        "new": DriveSpec(legs=leg, cruise=9.0, seed=6, light=noon),
+    }.items():
+        render_drive(spec, tmp_path / f"{name}.mp4", width=160, height=96)
+    base = tmp_path / "base"
+    ingest(Archive.create(base), tmp_path / "old.mp4")
+
+    def run(name: str):
+        shutil.copytree(base, tmp_path / name)
+        ar = open_archive(tmp_path / name)
+        rep = ingest(ar, tmp_path / "new.mp4")
+        return rep, [(s.mode, s.blob, s.params["recon_digest"], s.refmap.tolist()) for s in ar.segments(rep.drive_id)]
+
+    taken = []
+    real_take = piece_mod._Prefetch.take
+    monkeypatch.setattr(piece_mod._Prefetch, "take", lambda self: taken.append(1) or real_take(self))
+    rep, with_prefetch = run("with")
+    assert taken == [1] and [p.mode for p in rep.pieces] == ["joint"]
+
+    monkeypatch.setattr(piece_mod._PieceRun, "_start_prefetch", lambda self: None)
+    _, without = run("without")
+    assert with_prefetch == without
+
+    monkeypatch.undo()
+    calls = []
+    real_choose = piece_mod.choose_baseline
+
+    def changing_mind(illum, candidates):
+        calls.append(1)
+        return real_choose(illum, candidates) if len(calls) == 1 else None  # the light of frame 0 only
+
+    started = []
+    real_init = piece_mod._Prefetch.__init__
+    monkeypatch.setattr(piece_mod, "choose_baseline", changing_mind)
+    monkeypatch.setattr(piece_mod._Prefetch, "__init__", lambda self, *a: started.append(1) or real_init(self, *a))
+    before = set(threading.enumerate())
+    rep, dropped = run("dropped")
+    assert started == [1] and [s[0] for s in dropped] == ["intra"]
+    left = [t.name for t in set(threading.enumerate()) - before if t.name.startswith("egovid-")]
+    assert left == []  # the older drive's decoder stopped with the read-ahead

@@ -217,7 +217,6 @@ class OrbSearch:
         self.moved: list[int] = []  # moving frames seen up to each history entry
         self.n_moving = 0
         self.ratio_prev: float | None = None
-        self.wide = max(6, int(1.5 * fps))
         # Metres the reference advances per frame, to turn the GPS error into a tolerance in frames.
         self.ref_step = np.maximum(np.asarray(speed_ref, dtype=float) / fps, 0.05)
 
@@ -259,7 +258,7 @@ class OrbSearch:
         self.n_moving += 1
         wide = None
         if prev is None:
-            wide = cands = range(max(0, p - self.wide), min(m, p + self.wide + 1))
+            wide = cands = wide_window(p, m, fps)
         else:
             # Reference frames passed per new frame: the speed ratio of the drives, scaled like the
             # thesis' S by how the ratio changed since the last second's mean step. S covers twice
@@ -286,7 +285,7 @@ class OrbSearch:
             self.fallbacks += 1
         elif prev is not None and abs(best_j - prior[k]) > tol:
             # Far from where GPS says (a false match, or drift): re-search around the prior.
-            cands = range(max(prev, p - self.wide), min(m, p + self.wide + 1))
+            cands = wide_window(p, m, fps, low=prev)
             scored = self._score(k, feat, cands, True)
             if scored:
                 best_n, best_j = max(scored)
@@ -294,6 +293,13 @@ class OrbSearch:
         self.history = [*self.history[-int(fps) :], self.prev]
         self.moved = [*self.moved[-int(fps) :], self.n_moving]
         return int(best_j), int(best_n)
+
+
+def wide_window(p: int, m: int, fps: float, low: int = 0) -> range:
+    """The reference frames (of ``m``) a wide search around the GPS prior's frame ``p`` scores:
+    1.5 s either side (at least 6 frames), none below ``low``."""
+    half = max(6, int(1.5 * fps))
+    return range(max(low, p - half), min(m, p + half + 1))
 
 
 def align_orb(

@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from egovid.dashcam import codec, vpx
-from egovid.dashcam.align import OrbScorer, small_gray, warm_up
+from egovid.dashcam.align import OrbScorer, small_gray, warm_up, wide_window
 from egovid.dashcam.extract import FrameSource
 from egovid.dashcam.illumination import frame_features
 from egovid.dashcam.ingest.frames import InputFrame, RefFrames
@@ -92,6 +92,43 @@ class _StoppedError(Exception):
     pass
 
 
+class _Prefetch:
+    """The older drive's frames of the alignment's first (wide) search, decoded and their ORB
+    features computed in a thread of its own while the piece's first :data:`LOOKAHEAD` frames are
+    read to choose the baseline (the encoder has nothing to do then). Started for the candidate
+    the first frame's light picks; handed to the alignment if the choice agrees, else dropped."""
+
+    def __init__(self, candidate, refs: RefFrames, frames: range) -> None:
+        self.candidate, self.refs = candidate, refs
+        self.stop = threading.Event()
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, args=(frames,), name="egovid-prefetch", daemon=True)
+        self.thread.start()
+
+    def _run(self, frames: range) -> None:
+        try:
+            for j in frames:
+                if self.stop.is_set():
+                    return
+                self.refs.feats(j)
+        except BaseException as exc:  # raised again where the alignment takes the frames
+            self.error = exc
+
+    def take(self) -> RefFrames:
+        """The older drive's frames, once the thread is done with them."""
+        self.thread.join()
+        if self.error is not None:
+            self.refs.close()
+            raise self.error
+        return self.refs
+
+    def cancel(self) -> None:
+        """Stop, and close the older drive."""
+        self.stop.set()
+        self.thread.join()
+        self.refs.close()
+
+
 class _Discard:
     """A spool that keeps nothing (the standalone encode is measured, not stored)."""
 
@@ -118,6 +155,7 @@ class _PieceRun:
         self.fallbacks = 0
         self.peak_held = 0
         self.scorer = OrbScorer()
+        self.prefetch: _Prefetch | None = None
 
     def tick(self, stage: str, t0: float) -> None:
         self.clock[stage] = self.clock.get(stage, 0.0) + time.perf_counter() - t0
@@ -144,13 +182,53 @@ class _PieceRun:
         return fr
 
     def choose(self) -> None:
-        """Stage *baseline*: the light of the first frames picks the older drive (if any may serve)."""
+        """Stage *baseline*: the light of the first frames picks the older drive (if any may serve).
+
+        Meanwhile the older drive the first frame's light points to is opened and the alignment's
+        first search prepared (:class:`_Prefetch`), kept if the choice agrees."""
         if not self.piece.candidates:
             return
-        self.head = [self.analyse(self.next_frame()) for _ in range(min(self.n, LOOKAHEAD))]
-        self.ref = choose_baseline(self.illum_sum / self.illum_n, self.piece.candidates)
+        head = min(self.n, LOOKAHEAD)
+        try:
+            for i in range(head):
+                self.head.append(self.analyse(self.next_frame()))
+                if i == 0 and self.opts.aligner in ("orb", "orb-plain"):
+                    self._start_prefetch()
+            self.ref = choose_baseline(self.illum_sum / self.illum_n, self.piece.candidates)
+        finally:
+            if self.prefetch is not None and self.prefetch.candidate is not self.ref:
+                self.prefetch.cancel()
+                self.prefetch = None
         if self.ref is not None and self.opts.baseline_align != "none":
             self.align = {"kind": self.opts.baseline_align, "params": []}
+
+    def _start_prefetch(self) -> None:
+        likely = choose_baseline(self.illum_sum / self.illum_n, self.piece.candidates)
+        if likely is not None:
+            m = self._length(likely)
+            p = int(np.clip(round(self._prior(likely)[0]), 0, m - 1))
+            self.prefetch = _Prefetch(likely, self._open_refs(likely), wide_window(p, m, self.fps))
+
+    @staticmethod
+    def _length(ref) -> int:
+        return ref.frame_end - ref.frame_start
+
+    def _prior(self, ref) -> np.ndarray:
+        """(n,) the older drive's frame (its sequence's numbering, float) at each frame's GPS position."""
+        order = np.argsort(ref.positions, kind="stable")
+        return np.interp(self.piece.positions, ref.positions[order], order.astype(float))
+
+    def _open_refs(self, ref) -> RefFrames:
+        return RefFrames(
+            self.source,
+            ref.drive_id,
+            ref.frame_start,
+            self._length(ref),
+            self.size,
+            self.clock,
+            self.opts.refine_radius,
+            self.opts.refine_features,
+        )
 
     def produce(self, pipes: list[_Pipe]) -> None:
         """Decode (the shared pass), analyse, align, build baselines; hand (k, frame, baseline)
@@ -160,19 +238,9 @@ class _PieceRun:
             f0, f1 = self.piece.frames
             if self.ref is not None:
                 ref = self.ref
-                m = ref.frame_end - ref.frame_start
-                self.refs = RefFrames(
-                    self.source,
-                    ref.drive_id,
-                    ref.frame_start,
-                    m,
-                    self.size,
-                    self.clock,
-                    self.opts.refine_radius,
-                    self.opts.refine_features,
-                )
-                order = np.argsort(ref.positions, kind="stable")
-                prior = np.interp(self.piece.positions, ref.positions[order], order.astype(float))
+                m = self._length(ref)
+                self.refs = self.prefetch.take() if self.prefetch is not None else self._open_refs(ref)
+                prior = self._prior(ref)
                 speed_ref = np.abs(np.gradient(ref.positions.astype(float)) * ref.fps) if m > 1 else np.zeros(m)
                 aligner = StreamingAlignment(
                     self.opts.aligner,

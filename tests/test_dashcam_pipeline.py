@@ -42,6 +42,7 @@ class MemoryRef(RefFrames):
         self.m, self._grays = len(grays), grays
         self.scorer, self.refiner = OrbScorer(), ScaleRefiner()
         self._image, self._gray, self._feats, self._fine, self._desc = {}, {}, {}, {}, {}
+        self._released = 0
         self.low = 0
 
     def gray(self, j):
@@ -313,3 +314,40 @@ def test_the_older_drive_read_while_the_baseline_is_chosen_changes_nothing_or_is
     assert started == [1] and [s[0] for s in dropped] == ["intra"]
     left = [t.name for t in set(threading.enumerate()) - before if t.name.startswith("egovid-")]
     assert left == []  # the older drive's decoder stopped with the read-ahead
+
+
+def test_the_older_drives_frames_passed_on_the_way_are_kept_not_decoded_again(tmp_path, monkeypatch):
+    """A wide search scores every 3rd frame of the older drive and then asks for the ones between:
+    each frame is decoded once (they were decoded again from their random-access run), and is the
+    frame extract gives."""
+    from egovid.dashcam import extract
+    from egovid.dashcam.ingest import ingest
+    from egovid.dashcam.store import Archive
+    from egovid.synth.drive import DriveSpec, Light, render_drive
+
+    render_drive(
+        DriveSpec(legs=[("main", 100.0, 130.0)], cruise=10.0, seed=5, light=Light.preset("noon")),
+        tmp_path / "old.mp4",
+        width=160,
+        height=96,
+    )
+    ar = Archive.create(tmp_path / "archive")
+    rep = ingest(ar, tmp_path / "old.mp4")
+    (seg,) = ar.segments(rep.drive_id)
+    truth = list(extract.segment_frames(ar, seg))
+    decoded = []
+    real = extract.segment_frames
+
+    def counting(source, s, start=0, stop=None):
+        for i, frame in enumerate(real(source, s, start, stop)):
+            decoded.append(start + i)
+            yield frame
+
+    monkeypatch.setattr(extract, "segment_frames", counting)
+    refs = RefFrames(ar, rep.drive_id, seg.frame_start, 60, (160, 96), {})
+    try:
+        for j in [*range(0, 45, 3), *range(45), *range(40, 60)]:
+            assert np.array_equal(refs.image(j), truth[j])
+    finally:
+        refs.close()
+    assert len(decoded) == len(set(decoded)) and set(range(60)) <= set(decoded)

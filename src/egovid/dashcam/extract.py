@@ -168,7 +168,9 @@ class DriveFrames:
                 return s
         raise EgovidError(f"frame {idx} is not in the archive", DAMAGED)
 
-    def get(self, idx: int) -> np.ndarray:
+    def get(self, idx: int, passed: dict[int, np.ndarray] | None = None) -> np.ndarray:
+        """Frame ``idx`` (decoding forward to it; from its random-access run when it lies behind);
+        ``passed`` (if given) receives the frames decoded on the way, by index."""
         idx = int(idx)
         if idx in self._cache:
             self._cache.move_to_end(idx)
@@ -183,6 +185,8 @@ class DriveFrames:
         frame = None
         while self._pos <= idx:
             frame = next(self._gen)
+            if passed is not None and self._pos < idx:
+                passed[self._pos] = frame
             self._cache[self._pos] = frame
             if len(self._cache) > self._size:
                 self._cache.popitem(last=False)

@@ -85,14 +85,21 @@ class RefFrames:
         self._feats: dict[int, FrameFeatures] = {}
         self._fine: dict[int, FrameFeatures] = {}
         self._desc: dict[int, np.ndarray] = {}
+        self._released = 0  # full frames below this were released
         self.clock = clock
 
     def image(self, j: int) -> np.ndarray:
-        """The decoded I420 frame j."""
+        """The decoded I420 frame j. Frames decoded on the way to it are kept too (until
+        :meth:`release_below`): a search that scores every 3rd frame of a wide window asks for the
+        others soon after, and the older drive would be decoded again from a random-access run."""
         img = self._image.get(j)
         if img is None:
             t0 = time.perf_counter()
-            img = self.drive.get(self.f0 + j)
+            passed: dict[int, np.ndarray] = {}
+            img = self.drive.get(self.f0 + j, passed)
+            for i, frame in passed.items():
+                if i - self.f0 >= self._released:
+                    self._image.setdefault(i - self.f0, frame)
             self._image[j] = img
             self.clock["reference"] = self.clock.get("reference", 0.0) + time.perf_counter() - t0
         return img
@@ -133,6 +140,7 @@ class RefFrames:
         """Forget what was computed for frames below ``j`` (and full frames below
         ``images_below``, default ``j``)."""
         lo = j if images_below is None else images_below
+        self._released = max(self._released, lo)
         for cache, bound in (
             (self._image, lo),
             (self._gray, j),

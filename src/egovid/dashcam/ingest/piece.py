@@ -115,7 +115,9 @@ class _Prefetch:
             self.error = exc
 
     def take(self) -> RefFrames:
-        """The older drive's frames, once the thread is done with them."""
+        """The older drive's frames, as far as the thread got (it stops at the frame in hand: the
+        alignment computes the rest as it needs them, rather than wait)."""
+        self.stop.set()
         self.thread.join()
         if self.error is not None:
             self.refs.close()

@@ -72,6 +72,24 @@ def test_karma_clip_ingests_on_its_own_gps_and_comes_back_as_the_camera_wrote_it
         assert c.streams.audio[0].codec_context.name == "aac" and len(c.streams.data) == 1
         assert c.streams.video[0].codec_context.color_range == 2
     assert clip.with_suffix(".gpx").read_text().count("<trkpt") >= 15
+    # check counts the audio/telemetry blob as the drive's (it said "no drive uses" and sent the
+    # user to gc, which keeps it), and finds it damaged.
+    r = run_cli("dashcam", "check", root)
+    assert r.returncode == 0 and "no drive uses" not in r.stdout + r.stderr, r.stdout + r.stderr
+    assert "1 drive(s), 1 segment(s), 2 bitstream(s)" in r.stdout
+    streams = ar.catalogue.streams_blobs()
+    assert list(streams.values()) == [[d.id]]
+    (sha,) = streams
+    blob = root / "blobs" / sha[:2] / sha
+    data = bytearray(blob.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    blob.chmod(0o644)
+    blob.write_bytes(bytes(data))
+    r = run_cli("dashcam", "check", root)
+    assert (
+        r.returncode != 0
+        and f"the audio and telemetry of drive {rep['name']} ({sha[:12]}) are corrupt" in r.stdout + r.stderr
+    )
 
 
 def test_a_video_without_gps_anywhere_is_one_error_naming_gps(handheld_clip, tmp_path):

@@ -194,6 +194,10 @@ class Catalogue(ABC):
         """Names of every blob the catalogue refers to (segments, and drives' audio/telemetry)."""
 
     @abstractmethod
+    def streams_blobs(self) -> dict[str, list[int]]:
+        """The drives' audio/telemetry blobs (fleetstore.py): blob name -> ids of the drives."""
+
+    @abstractmethod
     def close(self) -> None: ...
 
 
@@ -431,10 +435,15 @@ class _SqlCatalogue(Catalogue):
         return self._segment(row)
 
     def blob_names(self) -> set[str]:
-        names = {r[0] for r in self._q("SELECT DISTINCT blob FROM segments")}
-        if self.get_meta("fleet_schema") is not None:  # drives' audio and telemetry (fleetstore.py)
-            names |= {r[0] for r in self._q("SELECT streams_blob FROM drive_meta WHERE streams_blob IS NOT NULL")}
-        return names
+        return {r[0] for r in self._q("SELECT DISTINCT blob FROM segments")} | set(self.streams_blobs())
+
+    def streams_blobs(self) -> dict[str, list[int]]:
+        out: dict[str, list[int]] = {}
+        if self.get_meta("fleet_schema") is None:  # no fleet tables (read-only: nothing is created)
+            return out
+        for sha, drive_id in self._q("SELECT streams_blob, drive_id FROM drive_meta WHERE streams_blob IS NOT NULL"):
+            out.setdefault(sha, []).append(int(drive_id))
+        return out
 
 
 class SqliteCatalogue(_SqlCatalogue):

@@ -394,6 +394,27 @@ def _check_contents(archive, report: CheckReport, *, repair: bool, deep: bool, p
     if progress:
         progress("bitstreams", len(used), len(used))
     unreadable |= {g.drive_id for sha in bad_blobs for g in used[sha]}
+    # the drives' audio and telemetry (their frames stay readable without them)
+    streams = cat.streams_blobs()
+    for sha, holders in sorted(streams.items()):
+        owners = ", ".join(sorted({name(d) for d in holders}))
+        problem = None
+        if sha not in files:
+            problem = "missing"
+        else:
+            try:
+                archive.blobs.get(sha)
+            except EgovidError:
+                problem = "corrupt"
+        if problem:
+            report.add(
+                "error",
+                f"the audio and telemetry of drive {owners} ({sha[:12]}) are {problem}",
+                "restore it from a backup",
+            )
+            continue
+        report.blobs += 1
+        report.blob_bytes += files[sha].size
 
     # drives that depend on an unreadable one cannot be read either
     changed = True
@@ -408,7 +429,7 @@ def _check_contents(archive, report: CheckReport, *, repair: bool, deep: bool, p
 
     # leftovers of interrupted ingests, and space gc can free
     temps = [f for f in files.values() if not f.is_blob]
-    orphans = [f for f in files.values() if f.is_blob and f.name not in used]
+    orphans = [f for f in files.values() if f.is_blob and f.name not in used and f.name not in streams]
     if temps:
         size = sum(f.size for f in temps)
         if repair:

@@ -161,3 +161,39 @@ def test_longer_pairs_on_every_other_frame_still_span_every_step():
             if j - i > 1:
                 spanned[i:j] = True
         assert spanned[: n - 8].all()
+
+
+def test_the_longer_pairs_follow_every_frame_near_a_failed_step_and_every_other_frame_elsewhere(shaky_clip, tmp_path):
+    """With ``long_every`` 2, the longer pairs ending at a frame whose spans hold a failed
+    distance-1 pair follow the every-frame schedule (they are all that bridges the gap); the rest
+    keep the every-other-frame schedule. A clip with a few flat grey frames (nothing to match)
+    against the schedule computed from the failed steps; the clip as it is gets exactly the plain
+    schedule."""
+    from egovid.io.video import VideoWriter, iter_frames
+    from egovid.motion.estimate import _scheduled, collect_pairs
+
+    def expected(n: int, failed: set[int]) -> set[tuple[int, int]]:
+        out = {(t - 1, t) for t in range(1, n)}
+        for t in range(n):
+            every = 1 if any(s in failed for s in range(t - 4, t + 1)) else 2
+            out |= {(t - g, t) for g in (2, 5) if t - g >= 0 and _scheduled(t - g, g, [2, 5], every)}
+        return out
+
+    plain = collect_pairs(shaky_clip)
+    n = len(plain.times)
+    assert not [p for i, j, p in plain.pairs if j == i + 1 and not p.ok]
+    assert {(i, j) for i, j, _ in plain.pairs} == expected(n, set())
+    assert [(i, j) for i, j, _ in plain.pairs] == sorted(
+        ((i, j) for i, j, _ in plain.pairs), key=lambda p: (p[1], -p[0])
+    )
+
+    gapped = tmp_path / "gap.mp4"
+    frames = [f.image for f in iter_frames(shaky_clip)]
+    with VideoWriter(gapped, frames[0].shape[1], frames[0].shape[0], 30) as w:
+        for k, img in enumerate(frames):
+            w.write(np.full_like(img, 128) if 40 <= k < 44 else img)
+    got = collect_pairs(gapped)
+    failed = {j for i, j, p in got.pairs if j == i + 1 and not p.ok}
+    assert failed and failed <= set(range(40, 46))
+    assert {(i, j) for i, j, _ in got.pairs} == expected(n, failed)
+    assert len(got.pairs) > len(plain.pairs)

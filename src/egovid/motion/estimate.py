@@ -49,6 +49,9 @@ STEPS_DETAIL_HZ = 1.0
 CONF_MEASURED, CONF_SPANNED, CONF_INTERPOLATED = 1.0, 0.5, 0.0
 
 
+LONG_DELAY = 6  # frames between a frame and the choice of its longer pairs (long_every > 1)
+
+
 @dataclass
 class MotionOptions:
     """Tuning of :func:`estimate_motion`.
@@ -173,7 +176,12 @@ def collect_pairs(
     local = threading.local()
     max_lag = max(opts.lags)
     long_lags = sorted(set(opts.lags) - {1})
-    window: deque[tuple[int, Future[FrameFeatures]]] = deque(maxlen=max_lag)
+    # With long_every > 1 the longer pairs ending at a frame are chosen LONG_DELAY frames later,
+    # once the distance-1 pairs around it are measured: near a failed step they follow the
+    # every-frame schedule (the longer pairs are all that bridges it).
+    delay = LONG_DELAY if opts.long_every > 1 and long_lags else 0
+    window: deque[tuple[int, Future[FrameFeatures]]] = deque(maxlen=max_lag + delay + 1)
+    steps: dict[int, Future] = {}  # j -> the distance-1 pair (j - 1, j)
     pairs: list[tuple[int, int, PairRotation]] = []
     matches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
     times: list[float] = []
@@ -208,9 +216,33 @@ def collect_pairs(
             if keep is not None:
                 matches[(i, j)] = keep
 
+    def failed_near(t: int) -> bool:
+        """Whether a distance-1 pair among the steps a longer pair ending at ``t`` can span failed."""
+        for s in range(t - max_lag + 1, t + 1):
+            f = steps.get(s)
+            if f is not None and not f.result()[2].ok:
+                return True
+        return False
+
+    def schedule_long(t: int) -> None:
+        """Submit the longer pairs ending at frame ``t`` (its features and its partners' are in
+        ``window``)."""
+        feats_of = dict(window)
+        # Pairs whose matches are kept serve a focal-length fit, which needs pairs that turn
+        # enough (the longer ones do most): there, every frame gets its longer pair.
+        every = opts.long_every if t >= opts.keep_matches else 1
+        if every > 1 and failed_near(t):
+            every = 1
+        for lag in long_lags:
+            if t - lag in feats_of and _scheduled(t - lag, lag, long_lags, every):
+                pending.append(pool.submit(pair_job, t - lag, feats_of[t - lag], t, feats_of[t], work.K))
+        for s in [s for s in steps if s <= t - max_lag]:
+            del steps[s]
+
     pool = ThreadPoolExecutor(max_workers=max(1, opts.threads))
     try:
         pending = []
+        last = None
         for frame in iter_frames(video, gray=True, scale=scale if scale < 1.0 else None, max_frames=opts.max_frames):
             if frame.image.shape[1] != work.width or frame.image.shape[0] != work.height:
                 # FFmpeg may round the scaled size differently; follow the actual image.
@@ -218,23 +250,28 @@ def collect_pairs(
             # Keypoints in the pool too: decoding (here) overlaps detection and matching (there).
             feats = pool.submit(features_job, frame.image)
             k = frame.index
-            # Pairs whose matches are kept serve a focal-length fit, which needs pairs that turn
-            # enough (the longer ones do most): there, every frame gets its longer pair.
-            every = opts.long_every if k >= opts.keep_matches else 1
-            for lag in opts.lags:
-                if len(window) >= lag and _scheduled(k - lag, lag, long_lags, every):
-                    j, fj = window[-lag]
-                    pending.append(pool.submit(pair_job, j, fj, k, feats, work.K))
+            if window:
+                j, fj = window[-1]
+                steps[k] = pool.submit(pair_job, j, fj, k, feats, work.K)
+                pending.append(steps[k])
             window.append((k, feats))
+            if k - delay >= window[0][0]:
+                schedule_long(k - delay)
+            last = k
             times.append(frame.time)
             if len(pending) > 8:
                 collect(f.result() for f in pending[:-4])
                 pending = pending[-4:]
             if progress is not None:
                 progress(k + 1, info.frame_count)
+        if last is not None:
+            for t in range(max(window[0][0], last - delay + 1), last + 1):
+                schedule_long(t)
         collect(f.result() for f in pending)
     finally:
         pool.shutdown(wait=True)
+    rank = {lag: r for r, lag in enumerate(opts.lags)}
+    pairs.sort(key=lambda p: (p[1], rank[p[1] - p[0]]))  # by frame, then lag: whatever the schedule
     return PairSet(np.asarray(times), pairs, work, matches, opts.threshold_px, time.perf_counter() - t_start)
 
 

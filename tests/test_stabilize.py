@@ -192,3 +192,46 @@ def test_pure_motion_of_a_zigzag_is_itself():
     a = np.stack([z, np.zeros(41), np.zeros(41)], 1)
     np.testing.assert_allclose(pure_motion(a)[:, 0], z, atol=1e-12)
     assert score_angles(pure_motion(a), 30, 98.3, 66.1).score == pytest.approx(score_angles(a, 30, 98.3, 66.1).score)
+
+
+def test_an_interrupt_inside_submit_waits_for_the_job_it_left_running(still_clip, tmp_path, monkeypatch):
+    """A signal handled inside the render's ``submit`` (after the job is queued, before it is
+    assigned) must not close the writer under that job: the clean-up waits for every job
+    submitted, then aborts the output (closing the encoder under a running write crashed the
+    process on an interrupt, seen once in a clean-clone test run)."""
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    from egovid.stabilize import render as render_mod
+
+    events: list[str] = []
+    real_write, real_abort = render_mod.VideoWriter.write_i420, render_mod.VideoWriter.abort
+
+    def slow_write(self, frame, t=None):
+        time.sleep(0.2)
+        real_write(self, frame, t)
+        events.append("written")
+
+    def abort(self):
+        events.append("abort")
+        real_abort(self)
+
+    class InterruptedPool(ThreadPoolExecutor):
+        writes = 0
+
+        def submit(self, fn, *args, **kwargs):
+            job = super().submit(fn, *args, **kwargs)
+            if getattr(fn, "__name__", "") == "slow_write":
+                InterruptedPool.writes += 1
+                if InterruptedPool.writes == 3:
+                    raise KeyboardInterrupt  # as the signal handler would, inside submit
+            return job
+
+    monkeypatch.setattr(render_mod.VideoWriter, "write_i420", slow_write)
+    monkeypatch.setattr(render_mod.VideoWriter, "abort", abort)
+    monkeypatch.setattr(render_mod, "ThreadPoolExecutor", InterruptedPool)
+    out = tmp_path / "out.mp4"
+    with pytest.raises(KeyboardInterrupt):
+        render_mod.render_stabilized(still_clip, out, np.tile(np.eye(3), (20, 1, 1)))
+    assert events == ["written"] * 3 + ["abort"]
+    assert not out.exists()

@@ -22,7 +22,6 @@ succeeded.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import time
 from collections.abc import Callable
@@ -164,9 +163,7 @@ def render_stabilized(
     try:
         # Frame threads, as the ffmpeg command gives x264 (PyAV's default is slice threads,
         # about 25 % slower for a whole video at the same settings).
-        with VideoWriter(
-            dst, w, h, info.fps, crf=crf, preset=preset, thread_type=thread_type, keep_from=src
-        ) as writer:
+        with VideoWriter(dst, w, h, info.fps, crf=crf, preset=preset, thread_type=thread_type, keep_from=src) as writer:
             try:
                 while (frame := decoding.result()) is not None:
                     decoding = stages.submit(next, frames, None)
@@ -203,11 +200,11 @@ def render_stabilized(
                 if encoding is not None:
                     encoding.result()
             finally:
-                # Nothing may touch the writer or the decoder once this block is left.
-                for job in (encoding, decoding):
-                    if job is not None:
-                        with contextlib.suppress(BaseException):
-                            job.result()
+                # Nothing may touch the writer or the decoder once this block is left: wait for
+                # every job submitted, not only those held in `encoding` and `decoding` (a signal
+                # handled inside `submit` leaves its job running and unassigned; closing the
+                # writer under it crashed the process on an interrupt).
+                stages.shutdown(wait=True)
             if n != len(H):
                 raise EgovidError(
                     f"{src} decoded {n} frames but its motion has {len(H)}", "re-estimate the motion of this video"

@@ -59,7 +59,8 @@ class MotionOptions:
     ``lags`` are the frame distances of the pose-graph edges: every frame is paired with the
     previous one, and the longer distances take turns on every ``long_every``-th frame (default
     1, 2, 5 on every other frame: frame i is paired with i + 2 when i % 4 == 0 and with i + 5
-    when i % 4 == 2, 1.5 pairs per frame, and every step is still spanned by a longer pair; the
+    when i % 4 == 2, 1.5 pairs per frame, and every step is still spanned by a longer pair; near
+    a failed distance-1 pair, on every frame, as they are all that bridges it; the
     thesis uses 1 and 5 on every frame, which leaves a 5-periodic error on real footage, see
     :mod:`egovid.motion.posegraph`). The longer pairs only hold the slow drift of chaining once
     the frame-to-frame detail comes from the distance-1 pairs (``detail_hz``): with
@@ -242,7 +243,6 @@ def collect_pairs(
     pool = ThreadPoolExecutor(max_workers=max(1, opts.threads))
     try:
         pending = []
-        last = None
         for frame in iter_frames(video, gray=True, scale=scale if scale < 1.0 else None, max_frames=opts.max_frames):
             if frame.image.shape[1] != work.width or frame.image.shape[0] != work.height:
                 # FFmpeg may round the scaled size differently; follow the actual image.
@@ -257,14 +257,14 @@ def collect_pairs(
             window.append((k, feats))
             if k - delay >= window[0][0]:
                 schedule_long(k - delay)
-            last = k
             times.append(frame.time)
             if len(pending) > 8:
                 collect(f.result() for f in pending[:-4])
                 pending = pending[-4:]
             if progress is not None:
                 progress(k + 1, info.frame_count)
-        if last is not None:
+        if window:  # the frames whose longer pairs were still to be chosen
+            last = window[-1][0]
             for t in range(max(window[0][0], last - delay + 1), last + 1):
                 schedule_long(t)
         collect(f.result() for f in pending)

@@ -37,11 +37,12 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.dashcam import codec, vpx
+from egovid.core.video import iter_frames
+from egovid.dashcam.archive.store import Archive
+from egovid.dashcam.codec import segment as codec
+from egovid.dashcam.codec import vpx
 from egovid.dashcam.ingest import IngestOptions, ingest
 from egovid.dashcam.ingest.options import PRESETS
-from egovid.dashcam.store import Archive
-from egovid.io.video import iter_frames
 from egovid.synth.drive import DriveSpec, Light, render_drive, simulate
 
 from _common import cache_dir, report

@@ -34,10 +34,10 @@ import sys
 import time
 from pathlib import Path
 
+from egovid.core.video import count_frames
+from egovid.dashcam.archive.store import Archive, open_archive
 from egovid.dashcam.ingest import IngestOptions, ingest
 from egovid.dashcam.ingest.options import PRESETS
-from egovid.dashcam.store import Archive, open_archive
-from egovid.io.video import count_frames
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
 from _common import ROOT, cache_dir, report, stolen_seconds
@@ -93,7 +93,7 @@ def compile_matcher() -> None:
     """numba's one-time compilation of the alignment's matcher, in a process of its own (it is
     cached on disk, as on any installation after its first joint ingest)."""
     code = (
-        "import numpy as np; from egovid.dashcam.align import cross_check_matches as m; "
+        "import numpy as np; from egovid.dashcam.align.orb import cross_check_matches as m; "
         "z = np.zeros((8, 32), np.uint8); m(z, z)"
     )
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -26,7 +26,7 @@ LENGTHS = [float(v) for v in os.environ.get("EGOVID_BENCH_LENGTHS", "10,60").spl
 CHILD = r"""
 import json, resource, sys
 from egovid.dashcam.ingest import ingest
-from egovid.dashcam.store import open_archive
+from egovid.dashcam.archive.store import open_archive
 ar = open_archive(sys.argv[1])
 rep = ingest(ar, sys.argv[2], None, name=sys.argv[3])
 print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "frames": rep.frames,
@@ -42,7 +42,7 @@ def _ingest(archive, video, name) -> dict:
 
 
 def main() -> None:
-    from egovid.dashcam.store import Archive
+    from egovid.dashcam.archive.store import Archive
 
     noon = Light.preset("noon")
     rows = {}

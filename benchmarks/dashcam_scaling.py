@@ -13,10 +13,10 @@ import os
 import shutil
 import time
 
+from egovid.core.engine import EngineConfig
+from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.ingest import DriveInput, IngestOptions
 from egovid.dashcam.ingest.run import ingest_many, plan_batch
-from egovid.dashcam.store import Archive
-from egovid.engine import EngineConfig
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
 from _common import cache_dir, report

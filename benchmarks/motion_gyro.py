@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.geometry import angle_deg
-from egovid.io.camera import Intrinsics
-from egovid.io.video import probe
-from egovid.motion import gyro
-from egovid.motion.estimate import MotionOptions, estimate_motion
-from egovid.motion.source import camera_motion
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.motion import gyro
+from egovid.core.motion.estimate import MotionOptions, estimate_motion
+from egovid.core.motion.source import camera_motion
+from egovid.core.rotations import angle_deg
+from egovid.core.video import probe
 
 from _common import report
 

@@ -11,9 +11,9 @@ import os
 
 import numpy as np
 
-from egovid.io.trajectory import Trajectory
-from egovid.io.video import iter_frames
-from egovid.motion.estimate import estimate_motion
+from egovid.core.motion.estimate import estimate_motion
+from egovid.core.trajectory import Trajectory
+from egovid.core.video import iter_frames
 
 from _common import cache_dir, report, running_clip, timed
 
@@ -24,7 +24,7 @@ def main() -> None:
     _, t_dec = timed(lambda: sum(1 for _ in iter_frames(clip, gray=True)))
     _, t_bgr = timed(lambda: sum(1 for _ in iter_frames(clip)))
     est, t_est = timed(estimate_motion, clip)
-    from egovid.io.trajectory import read_motion_csv
+    from egovid.core.trajectory import read_motion_csv
 
     gt = read_motion_csv(clip.with_name(clip.stem + ".gt.csv")).relative_to_first()
     err = np.sqrt(np.mean((est.trajectory.euler() - gt.euler()) ** 2, axis=0))

@@ -12,8 +12,8 @@ import time
 
 import numpy as np
 
-from egovid.perception.score import score_angles, world_intervals
-from egovid.perception.ve2d import ve2d_video
+from egovid.fpv.perception.score import score_angles, world_intervals
+from egovid.fpv.perception.ve2d import ve2d_video
 from egovid.synth import motions
 
 from _common import cache_dir, report, running_clip

@@ -7,7 +7,7 @@ frames), both encoding libx264 veryfast CRF 18. Measured the same way on the inp
 decoded outputs:
 
 * high-frequency jitter: phase-correlation image path at 480 px width, zero-phase Butterworth
-  high-pass above 3 Hz, RMS in pixels (:mod:`egovid.metrics.jitter`; independent of either
+  high-pass above 3 Hz, RMS in pixels (:mod:`egovid.core.metrics.jitter`; independent of either
   stabiliser's motion model);
 * zoom: egovid's per-frame zoom (mean and largest), vid.stab's static zoom;
 * ITF (thesis eq. 10.9) of each output and of a zoom-only control: the input zoomed exactly like
@@ -31,12 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.io.video import probe
-from egovid.motion.source import camera_motion
-from egovid.stabilize.measure import measure_video, pixel_measures
-from egovid.stabilize.pipeline import stabilize
-from egovid.stabilize.render import render_stabilized
-from egovid.stabilize.vidstab import run_vidstab
+from egovid.core.motion.source import camera_motion
+from egovid.core.video import probe
+from egovid.fpv.stabilize.measure import measure_video, pixel_measures
+from egovid.fpv.stabilize.pipeline import stabilize
+from egovid.fpv.stabilize.render import render_stabilized
+from egovid.fpv.stabilize.vidstab import run_vidstab
 
 from _common import ROOT, cache_dir, report
 

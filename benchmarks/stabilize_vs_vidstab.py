@@ -20,13 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.geometry import matrix_from_euler
-from egovid.io.camera import Intrinsics
-from egovid.io.video import count_frames, probe
-from egovid.stabilize.measure import measure_video
-from egovid.stabilize.pipeline import stabilize
-from egovid.stabilize.render import content_masks, homographies
-from egovid.stabilize.vidstab import run_vidstab
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.rotations import matrix_from_euler
+from egovid.core.video import count_frames, probe
+from egovid.fpv.stabilize.measure import measure_video
+from egovid.fpv.stabilize.pipeline import stabilize
+from egovid.fpv.stabilize.render import content_masks, homographies
+from egovid.fpv.stabilize.vidstab import run_vidstab
 from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.engine import EngineConfig, spawn_cluster
+from egovid.core.engine import EngineConfig, spawn_cluster
 from egovid.voeval.layout import LEVELS
 from egovid.voeval.report import write_report
 from egovid.voeval.runner import GridConfig, load_results, run_grid

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.stabilize.lut import best_easing
+from egovid.fpv.stabilize.lut import best_easing
 
 OUT = Path(__file__).resolve().parent.parent / "src" / "egovid" / "data" / "easing_lut.npz"
 AMPLITUDES = np.round(np.geomspace(0.1, 60.0, 28), 4)  # swing, peak to peak, degrees

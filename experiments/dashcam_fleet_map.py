@@ -88,7 +88,7 @@ def main(out: Path) -> None:
     cli("dashcam", "ingest", archive, loops, "--gps", src / "wednesday.gpx", "--measure-savings")
     cli("dashcam", "ingest", archive, event, "--gps", src / "thursday.gpx", "--measure-savings")
     cli("dashcam", "list", archive)
-    from egovid.dashcam.gps import read_track
+    from egovid.dashcam.route.tracks import read_track
 
     track = read_track(src / "monday.gpx")
     k = len(track) * 2 // 3

@@ -25,7 +25,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from dashcam_bdrate import frames_of, specs  # noqa: E402
-from egovid.dashcam import codec, vpx  # noqa: E402
+from egovid.dashcam.codec import segment as codec  # noqa: E402
+from egovid.dashcam.codec import vpx  # noqa: E402
 from egovid.synth.drive import render_drive  # noqa: E402
 
 from _common import cache_dir  # noqa: E402

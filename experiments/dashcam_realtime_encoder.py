@@ -7,7 +7,7 @@ drive aligned by the simulator's ground truth so that only the encoder differs, 
 encode's frames per second (noisy on a shared machine).
 
 Usage: ``python experiments/dashcam_realtime_encoder.py '[CONFIG, ...]'`` where each CONFIG is a
-JSON object of :class:`egovid.dashcam.vpx.EncoderSettings` fields plus, for trials the encoder does
+JSON object of :class:`egovid.dashcam.codec.vpx.EncoderSettings` fields plus, for trials the encoder does
 not offer, ``"ctl": [[control id, value], ...]`` (libvpx controls applied after start-up; the
 self-test runs before them) and ``"role_speed": {"anchor": 7, ...}`` (cpu-used for the frames of
 one role, switched around them). Env: PAIRS (default day-a), QS, VERIFY=1 (a decoder follows the
@@ -30,7 +30,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import dashcam_bdrate as bench  # noqa: E402
-from egovid.dashcam import codec, vpx  # noqa: E402
+from egovid.dashcam.codec import segment as codec  # noqa: E402
+from egovid.dashcam.codec import vpx  # noqa: E402
 from egovid.synth.drive import render_drive, simulate  # noqa: E402
 
 from _common import cache_dir  # noqa: E402

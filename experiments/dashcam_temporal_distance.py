@@ -25,7 +25,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import dashcam_bdrate as bench  # noqa: E402
-from egovid.dashcam import codec, vpx  # noqa: E402
+from egovid.dashcam.codec import segment as codec  # noqa: E402
+from egovid.dashcam.codec import vpx  # noqa: E402
 from egovid.synth.drive import render_drive, simulate  # noqa: E402
 
 W, H = 640, 360

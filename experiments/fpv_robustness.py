@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.perception.intervals import yaw_pitch_intervals
-from egovid.perception.model import ViewingModel
-from egovid.perception.score import rms
-from egovid.perception.ve import sve_windows, ve_windows
+from egovid.fpv.perception.intervals import yaw_pitch_intervals
+from egovid.fpv.perception.model import ViewingModel
+from egovid.fpv.perception.score import rms
+from egovid.fpv.perception.ve import sve_windows, ve_windows
 
 OUT = Path(__file__).resolve().parent.parent / "docs" / "figures"
 F, D, MAR = 830.0, 3240.0, 0.02

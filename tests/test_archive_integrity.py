@@ -348,9 +348,9 @@ def test_a_backup_that_cannot_be_written_is_said_and_never_left_behind(tmp_path,
     the backup is not, and the old backup (one commit behind) is gone rather than kept."""
     import errno
 
-    from egovid.dashcam import integrity
-    from egovid.dashcam.catalogue import SqliteCatalogue
-    from egovid.errors import EgovidError
+    from egovid.core.errors import EgovidError
+    from egovid.dashcam import check as integrity
+    from egovid.dashcam.archive.catalogue import SqliteCatalogue
 
     cat = SqliteCatalogue(tmp_path / "catalogue.sqlite", create=True)
     assert integrity.backup_path(cat.file).exists()

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from egovid.errors import EgovidError
-from egovid.io.camera import Intrinsics, resolve_intrinsics
-from egovid.io.trajectory import (
+from egovid.core.camera.intrinsics import Intrinsics, resolve_intrinsics
+from egovid.core.errors import EgovidError
+from egovid.core.trajectory import (
     Trajectory,
     read_kitti,
     read_motion_csv,

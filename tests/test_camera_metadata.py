@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from egovid.errors import EgovidError
-from egovid.io.metadata import ExifTool, find_tag, read_tags
-from egovid.io.telemetry import read_camera_telemetry
+from egovid.core.camera.exif import ExifTool, find_tag, read_tags
+from egovid.core.camera.telemetry import read_camera_telemetry
+from egovid.core.errors import EgovidError
 
 
 def test_exiftool_reads_container_and_embedded_gpmf(karma_clip):
@@ -69,7 +69,7 @@ def test_intrinsics_resolution_order(karma_clip, handheld_clip, tmp_path):
     import shutil
     import subprocess
 
-    from egovid.io.camera import resolve_camera
+    from egovid.core.camera.intrinsics import resolve_camera
 
     # GoPro lens mode: Medium, 94.4° published across 854 px, equidistant fisheye.
     cam = resolve_camera(karma_clip)

@@ -6,8 +6,8 @@ import av
 import numpy as np
 import pytest
 
-from egovid.io.trajectory import read_motion_csv, read_tum
-from egovid.io.video import VideoWriter
+from egovid.core.trajectory import read_motion_csv, read_tum
+from egovid.core.video import VideoWriter
 
 from conftest import run_cli
 

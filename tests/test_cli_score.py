@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from egovid.io.trajectory import Trajectory, write_motion_csv
+from egovid.core.trajectory import Trajectory, write_motion_csv
 from egovid.synth import motions
 
 from conftest import assert_one_error, run_cli

@@ -10,8 +10,8 @@ import av
 import numpy as np
 import pytest
 
-from egovid.io.trajectory import Trajectory, write_motion_csv
-from egovid.io.video import VideoWriter, count_frames, iter_frames
+from egovid.core.trajectory import Trajectory, write_motion_csv
+from egovid.core.video import VideoWriter, count_frames, iter_frames
 from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 

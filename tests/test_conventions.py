@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from egovid.geometry import euler_from_matrix, matrix_from_euler
+from egovid.core.rotations import euler_from_matrix, matrix_from_euler
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 

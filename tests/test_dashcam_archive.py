@@ -11,11 +11,11 @@ import sys
 import numpy as np
 import pytest
 
-from egovid.dashcam import codec
+from egovid.core.video import iter_frames
+from egovid.dashcam.archive.store import Archive
+from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.extract import extract_video
 from egovid.dashcam.ingest import IngestOptions, ingest
-from egovid.dashcam.store import Archive
-from egovid.io.video import iter_frames
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
 from conftest import _wait_for, assert_one_error, run_cli

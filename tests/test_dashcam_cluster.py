@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from egovid.dashcam import codec
+from egovid.core.engine import EngineConfig
+from egovid.core.video import iter_frames
+from egovid.dashcam.archive.store import open_archive
+from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.ingest import DriveInput, IngestOptions
 from egovid.dashcam.ingest.run import ingest_many, plan_batch
-from egovid.dashcam.store import open_archive
-from egovid.engine import EngineConfig
-from egovid.io.video import iter_frames
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
 from conftest import _wait_for, run_cli

@@ -21,9 +21,9 @@ import av
 import numpy as np
 import pytest
 
-from egovid.dashcam.gps import read_track
-from egovid.errors import EgovidError
-from egovid.io.video import iter_frames
+from egovid.core.errors import EgovidError
+from egovid.core.video import iter_frames
+from egovid.dashcam.route.tracks import read_track
 from egovid.synth.drive import DriveSpec, Light, render_drive
 from test_dashcam_fleet_map import browse
 
@@ -133,7 +133,7 @@ def test_three_loop_files_make_one_trip(fleet):
 
 
 def test_a_log_beside_the_first_loop_file_covers_the_next_ones(fleet, tmp_path):
-    from egovid.dashcam.sources import ClockOptions, examine
+    from egovid.dashcam.ingest.sources import ClockOptions, examine
 
     files = fleet["files"]
     for f in files:

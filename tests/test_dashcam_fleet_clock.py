@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from egovid.dashcam.clock import name_time, parse_creation_time, resolve_clock
-from egovid.dashcam.gps import GpsTrack
-from egovid.dashcam.gps_embedded import fixes_from_exiftool, parse_gps_time, read_embedded_gps
-from egovid.errors import EgovidError
+from egovid.core.errors import EgovidError
+from egovid.dashcam.route.clock import name_time, parse_creation_time, resolve_clock
+from egovid.dashcam.route.embedded import fixes_from_exiftool, parse_gps_time, read_embedded_gps
+from egovid.dashcam.route.tracks import GpsTrack
 
 
 def utc(*args) -> float:
@@ -120,7 +120,7 @@ def test_karma_clip_gives_its_utc_start_from_its_own_gps(karma_clip):
     assert KARMA_FIRST_FRAME[0] <= c.start_utc <= KARMA_FIRST_FRAME[1]
     assert c.notes == ()  # this camera's clock agrees with GPS time
     # The fixes follow the drone along the cliff: about 80 m north-west in 12 s.
-    from egovid.dashcam.gps import project
+    from egovid.dashcam.route.tracks import project
 
     xy = project(e.track.lat, e.track.lon, (e.track.lat[0], e.track.lon[0]))
     assert 60 < np.hypot(*xy[-1]) < 100 and xy[-1, 0] < 0 < xy[-1, 1]
@@ -158,7 +158,7 @@ def test_nmea_in_a_text_track(tmp_path: Path):
 
 
 def test_a_camera_clock_set_to_local_time_is_reported_not_used(karma_clip, tmp_path):
-    from egovid.dashcam.sources import ClockOptions, examine
+    from egovid.dashcam.ingest.sources import ClockOptions, examine
 
     exiftool = shutil.which("exiftool")
     if exiftool is None:

@@ -11,9 +11,9 @@ import subprocess
 import av
 import pytest
 
+from egovid.core.video import iter_frames
+from egovid.dashcam.archive.store import open_archive
 from egovid.dashcam.extract import drive_frames
-from egovid.dashcam.store import open_archive
-from egovid.io.video import iter_frames
 
 from conftest import assert_one_error, run_cli
 

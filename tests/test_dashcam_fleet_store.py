@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from egovid.dashcam.catalogue import catalogue_settings, open_catalogue
+from egovid.dashcam.archive.catalogue import catalogue_settings, open_catalogue
+from egovid.dashcam.archive.fleetstore import DriveMeta, DrivePart, FleetStore
 from egovid.dashcam.find import Query, stretches
-from egovid.dashcam.fleetstore import DriveMeta, DrivePart, FleetStore
 
 T0 = 1_777_000_000.0  # 2026-04-24
 

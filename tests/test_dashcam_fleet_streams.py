@@ -10,7 +10,7 @@ import av
 import numpy as np
 import pytest
 
-from egovid.dashcam.streams import StreamCopier, archive_streams
+from egovid.dashcam.codec.streams import StreamCopier, archive_streams
 
 
 def _pcm(container, t0: float = 0.0, t1: float = 1e9, rate: int = 48000) -> np.ndarray:

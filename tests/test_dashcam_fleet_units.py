@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from egovid.core.errors import EgovidError
 from egovid.dashcam.retention import (
     DriveAge,
     SegmentRef,
@@ -16,8 +17,7 @@ from egovid.dashcam.retention import (
     parse_size,
     plan_forget,
 )
-from egovid.dashcam.trips import FileInfo, expand_inputs, file_channel, file_kind, plan_trips
-from egovid.errors import EgovidError
+from egovid.dashcam.route.trips import FileInfo, expand_inputs, file_channel, file_kind, plan_trips
 
 
 def _f(name: str, start: float | None, duration: float = 60.0, size=(1280, 720), fps=30.0) -> FileInfo:

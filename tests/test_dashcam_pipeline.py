@@ -7,16 +7,16 @@ import cv2
 import numpy as np
 import pytest
 
-from egovid.dashcam.align import (
+from egovid.dashcam.align.orb import (
     OrbScorer,
     ScaleRefiner,
     align_orb,
     cross_check_matches,
     smooth_monotone,
 )
+from egovid.dashcam.align.seqslam import align_seqslam, descriptor
+from egovid.dashcam.ingest.align import StreamingAlignment
 from egovid.dashcam.ingest.frames import RefFrames
-from egovid.dashcam.ingest.timeline import StreamingAlignment
-from egovid.dashcam.seqslam import align_seqslam, descriptor
 
 
 def test_cross_check_matches_are_opencvs():
@@ -137,7 +137,7 @@ def test_a_coarse_wide_search_finds_the_full_searchs_match_scoring_a_third_of_th
     """The first frame is searched 1.5 s either side of its GPS prior; with ``coarse`` = 3 every
     3rd reference frame is scored, then the neighbours of the best: the same match, a third of the
     work (the frames after it search the same short range either way)."""
-    from egovid.dashcam.align import OrbSearch
+    from egovid.dashcam.align.orb import OrbSearch
 
     ref, new, stopped, prior = sequences
     sc = OrbScorer()
@@ -167,8 +167,8 @@ def test_a_coarse_wide_search_finds_the_full_searchs_match_scoring_a_third_of_th
 
 
 def test_the_default_options_are_the_default_preset_and_options_override_presets():
+    from egovid.core.errors import EgovidError
     from egovid.dashcam.ingest.options import DEFAULT_PRESET, PRESETS, IngestOptions
-    from egovid.errors import EgovidError
 
     assert IngestOptions() == IngestOptions.from_preset(None) == IngestOptions.from_preset(DEFAULT_PRESET)
     for name, settings in PRESETS.items():
@@ -204,8 +204,8 @@ def test_an_ingest_decodes_its_video_once_and_holds_few_frames(tmp_path, monkeyp
     looks at), and at most a few dozen frames of the two drives are in memory at any time."""
     import av
 
+    from egovid.dashcam.archive.store import Archive
     from egovid.dashcam.ingest import ingest
-    from egovid.dashcam.store import Archive
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
     noon = Light.preset("noon")
@@ -266,9 +266,9 @@ def test_the_older_drive_read_while_the_baseline_is_chosen_changes_nothing_or_is
     import shutil
     import threading
 
+    from egovid.dashcam.archive.store import Archive, open_archive
     from egovid.dashcam.ingest import ingest
     from egovid.dashcam.ingest import piece as piece_mod
-    from egovid.dashcam.store import Archive, open_archive
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
     noon = Light.preset("noon")
@@ -321,8 +321,8 @@ def test_the_older_drives_frames_passed_on_the_way_are_kept_not_decoded_again(tm
     each frame is decoded once (they were decoded again from their random-access run), and is the
     frame extract gives."""
     from egovid.dashcam import extract
+    from egovid.dashcam.archive.store import Archive
     from egovid.dashcam.ingest import ingest
-    from egovid.dashcam.store import Archive
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
     render_drive(

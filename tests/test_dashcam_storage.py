@@ -7,14 +7,15 @@ import time
 import numpy as np
 import pytest
 
-from egovid.dashcam import codec, vpx
-from egovid.dashcam.blobs import FsspecBlobs, LocalBlobs
-from egovid.dashcam.catalogue import Segment, SqliteCatalogue
+from egovid.core.errors import EgovidError
+from egovid.dashcam.archive.blobs import FsspecBlobs, LocalBlobs
+from egovid.dashcam.archive.catalogue import Segment, SqliteCatalogue
+from egovid.dashcam.archive.locks import FileLocks, PgLocks
+from egovid.dashcam.codec import segment as codec
+from egovid.dashcam.codec import vpx
 from egovid.dashcam.extract import segment_frames
-from egovid.dashcam.gps import read_track
 from egovid.dashcam.ingest.stages import CataloguePaths, PlannedPaths, split_path
-from egovid.dashcam.locks import FileLocks, PgLocks
-from egovid.errors import EgovidError
+from egovid.dashcam.route.tracks import read_track
 
 
 @pytest.fixture(params=["local", "memory"])

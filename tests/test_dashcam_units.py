@@ -8,14 +8,15 @@ import hashlib
 import numpy as np
 import pytest
 
-from egovid.dashcam import codec, vpx
-from egovid.dashcam.catalogue import PostgresCatalogue, SqliteCatalogue
-from egovid.dashcam.gps import project, read_track
-from egovid.dashcam.illumination import best_match, frame_features, rank_scores
-from egovid.dashcam.paths import match_path, resample, split_drive, split_points
-from egovid.dashcam.seqslam import align_seqslam, descriptor
-from egovid.dashcam.stops import stopped_frames
-from egovid.errors import EgovidError
+from egovid.core.errors import EgovidError
+from egovid.dashcam.align.illumination import best_match, frame_features, rank_scores
+from egovid.dashcam.align.seqslam import align_seqslam, descriptor
+from egovid.dashcam.align.stops import stopped_frames
+from egovid.dashcam.archive.catalogue import PostgresCatalogue, SqliteCatalogue
+from egovid.dashcam.codec import segment as codec
+from egovid.dashcam.codec import vpx
+from egovid.dashcam.route.paths import match_path, resample, split_drive, split_points
+from egovid.dashcam.route.tracks import project, read_track
 
 
 def _nmea(body):
@@ -478,7 +479,7 @@ def _zoomed(img, z, dx=0.0):
 
 
 def test_vertical_scale_measures_zoom_and_ignores_sideways_shift():
-    from egovid.dashcam.align import ScaleRefiner, vertical_log_scale
+    from egovid.dashcam.align.orb import ScaleRefiner, vertical_log_scale
     from egovid.synth.photos import photo
 
     img = photo("astronaut")
@@ -494,7 +495,7 @@ def test_scale_refiner_finds_the_frame_level_with_the_new_one():
     """Reference frames every unit of road (0-17), new frames every 1.12 units from -1.4 on, 4 px to
     the side, with a stop: it starts before the older drive and ends after it. Matches that start
     up to 2 frames off must end on the nearest reference frame, and never outside the older drive."""
-    from egovid.dashcam.align import ScaleRefiner
+    from egovid.dashcam.align.orb import ScaleRefiner
     from egovid.synth.photos import photo
 
     img = photo("astronaut")

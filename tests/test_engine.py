@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from egovid.engine import EngineConfig, open_client, run_tasks, scheduler_address, steady_malloc
-from egovid.errors import EgovidError
+from egovid.core.engine import EngineConfig, open_client, run_tasks, scheduler_address, steady_malloc
+from egovid.core.errors import EgovidError
 
 
 def square(x: int) -> int:

@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 from egovid.cli import run
-from egovid.errors import EgovidError, user_error
-from egovid.io.files import atomic_write_text, output_transaction
-from egovid.io.video import count_frames, iter_frames, probe
+from egovid.core.errors import EgovidError, user_error
+from egovid.core.files import atomic_write_text, output_transaction
+from egovid.core.video import count_frames, iter_frames, probe
 from egovid.synth.fpv import render_fpv
 
 from conftest import assert_interrupted, assert_one_error, cli_env, partial_output_in, run_cli, wait_until_running

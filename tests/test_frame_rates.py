@@ -4,13 +4,13 @@ the stabiliser's objective are evaluated at the model's 30 fps, whatever the vid
 import numpy as np
 import pytest
 
-from egovid.errors import EgovidError
-from egovid.io.camera import Intrinsics
-from egovid.perception.model import ViewingModel, from_model_rate, to_model_rate
-from egovid.perception.score import score_angles
-from egovid.perception.ve2d import ve2d_video
-from egovid.stabilize.lut import EasingLUT
-from egovid.stabilize.pipeline import plan_motion
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.errors import EgovidError
+from egovid.fpv.perception.model import ViewingModel, from_model_rate, to_model_rate
+from egovid.fpv.perception.score import score_angles
+from egovid.fpv.perception.ve2d import ve2d_video
+from egovid.fpv.stabilize.lut import EasingLUT
+from egovid.fpv.stabilize.pipeline import plan_motion
 from egovid.synth.fpv import render_fpv
 
 HFOV, VFOV = 98.3, 66.1

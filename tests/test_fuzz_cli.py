@@ -103,7 +103,7 @@ def snapshot(folder: Path) -> dict[str, tuple]:
 
 def invoke(args: list[str], capsys) -> tuple[int, str, str]:
     """Run the CLI in this process; returns (exit status, stdout, stderr)."""
-    from egovid.io import video
+    from egovid.core import video
 
     video._TRUNCATED_OK.clear()
     capsys.readouterr()

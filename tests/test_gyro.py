@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from egovid.errors import EgovidError
-from egovid.geometry import angle_deg, so3_exp
-from egovid.io.telemetry import CameraTelemetry, ImuSamples, OrientationSamples
-from egovid.motion import gyro
-from egovid.motion.source import choose_source
+from egovid.core.camera.telemetry import CameraTelemetry, ImuSamples, OrientationSamples
+from egovid.core.errors import EgovidError
+from egovid.core.motion import gyro
+from egovid.core.motion.source import choose_source
+from egovid.core.rotations import angle_deg, so3_exp
 
 
 def _smooth_rates(t: np.ndarray, seed: int) -> np.ndarray:
@@ -79,7 +79,7 @@ def test_unrelated_gyro_is_not_trusted():
 def test_focal_fit_recovers_the_focal_length():
     """Points seen by a 640x360 camera of focal length 410 px turning by known rotations; vision
     fits them assuming 300 px; the gyro's rotations give back 410 px in two steps (fit, re-fit)."""
-    from egovid.motion.pairwise import rotation_from_correspondences
+    from egovid.core.motion.pairwise import rotation_from_correspondences
 
     rng = np.random.default_rng(7)
     f_true, w, h = 410.0, 640, 360
@@ -136,8 +136,8 @@ def test_camera_orientation_source_end_to_end(shaky_clip, monkeypatch):
     """A camera that stabilised its picture and recorded the picture's orientation (GoPro IORI):
     no such clip is ours to ship, so the synthetic clip's ground truth plays the recorded
     orientation, in other axes and 40 ms late; `auto` must pick it and sync it."""
-    from egovid.io.trajectory import read_motion_csv
-    from egovid.motion import source as source_mod
+    from egovid.core.motion import source as source_mod
+    from egovid.core.trajectory import read_motion_csv
 
     truth = read_motion_csv(shaky_clip.with_name("shaky.gt.csv")).relative_to_first()
     M = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # camera = M · recorded

@@ -4,11 +4,11 @@ chaining with known noise, and the whole pipeline against synthetic ground truth
 import numpy as np
 import pytest
 
-from egovid.geometry import angle_deg, euler_from_matrix, matrix_from_euler, so3_exp
-from egovid.io.trajectory import Trajectory, read_motion_csv
-from egovid.motion.estimate import estimate_motion, steps_detail
-from egovid.motion.pairwise import relative_rotation
-from egovid.motion.posegraph import Edge, chain, optimize
+from egovid.core.motion.estimate import estimate_motion, steps_detail
+from egovid.core.motion.pairwise import relative_rotation
+from egovid.core.motion.posegraph import Edge, chain, optimize
+from egovid.core.rotations import angle_deg, euler_from_matrix, matrix_from_euler, so3_exp
+from egovid.core.trajectory import Trajectory, read_motion_csv
 from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 
@@ -54,7 +54,7 @@ def test_translation_with_depth_switches_to_essential_model():
     assert p.ok and p.model == "essential"
     assert angle_deg(p.Q.T @ (R_i.T @ R_j)) < 0.03
     # The rotation-only fit of the same matches is biased by the parallax.
-    from egovid.motion.pairwise import bearings, kabsch
+    from egovid.core.motion.pairwise import bearings, kabsch
 
     Kinv = np.linalg.inv(K)
     biased = kabsch(bearings(pj, Kinv), bearings(pi, Kinv))
@@ -149,7 +149,7 @@ def test_steps_detail_takes_frame_steps_above_the_cutoff_and_the_graph_below():
 def test_longer_pairs_on_every_other_frame_still_span_every_step():
     """Lags 1, 2, 5 with the longer pairs on every other frame: 1.5 pairs per frame, and every
     frame step lies under some longer pair (so the graph still holds the chain's drift)."""
-    from egovid.motion.estimate import _scheduled
+    from egovid.core.motion.estimate import _scheduled
 
     n = 400
     for every, per_frame in ((1, 2.0), (2, 1.5)):
@@ -169,8 +169,8 @@ def test_the_longer_pairs_follow_every_frame_near_a_failed_step_and_every_other_
     keep the every-other-frame schedule. A clip with a few flat grey frames (nothing to match)
     against the schedule computed from the failed steps; the clip as it is gets exactly the plain
     schedule."""
-    from egovid.io.video import VideoWriter, iter_frames
-    from egovid.motion.estimate import _scheduled, collect_pairs
+    from egovid.core.motion.estimate import _scheduled, collect_pairs
+    from egovid.core.video import VideoWriter, iter_frames
 
     def expected(n: int, failed: set[int]) -> set[tuple[int, int]]:
         out = {(t - 1, t) for t in range(1, n)}

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from egovid.geometry import angle_deg
-from egovid.io.camera import resolve_camera
-from egovid.io.video import frame_times, iter_frames, probe
-from egovid.motion.estimate import MotionOptions, estimate_motion
-from egovid.motion.pairwise import refine_by_prewarp, relative_rotation
+from egovid.core.camera.intrinsics import resolve_camera
+from egovid.core.motion.estimate import MotionOptions, estimate_motion
+from egovid.core.motion.pairwise import refine_by_prewarp, relative_rotation
+from egovid.core.rotations import angle_deg
+from egovid.core.video import frame_times, iter_frames, probe
 
 FFMPEG = "/usr/bin/ffmpeg"
 

@@ -7,12 +7,12 @@ import cv2
 import numpy as np
 import pytest
 
-from egovid.errors import EgovidError
-from egovid.geometry import matrix_from_euler
-from egovid.io.camera import Intrinsics
-from egovid.metrics.jitter import high_pass_rms
-from egovid.stabilize.path import PathWeights, bspline_basis, fit_path, required_keep
-from egovid.stabilize.render import homographies, zoom_about_centre
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.errors import EgovidError
+from egovid.core.metrics.jitter import high_pass_rms
+from egovid.core.rotations import matrix_from_euler
+from egovid.fpv.stabilize.path import PathWeights, bspline_basis, fit_path, required_keep
+from egovid.fpv.stabilize.render import homographies, zoom_about_centre
 
 INTR = Intrinsics.from_hfov(640, 360, 94.4)
 FPS = 30.0

@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from egovid.errors import EgovidError
-from egovid.perception.intervals import position_error_deg, roll_intervals, yaw_pitch_intervals
-from egovid.perception.model import ViewingModel
-from egovid.perception.score import score_angles, world_intervals
-from egovid.perception.ve import sve_windows, ve_bruteforce, ve_windows
+from egovid.core.errors import EgovidError
+from egovid.fpv.perception.intervals import position_error_deg, roll_intervals, yaw_pitch_intervals
+from egovid.fpv.perception.model import ViewingModel
+from egovid.fpv.perception.score import score_angles, world_intervals
+from egovid.fpv.perception.ve import sve_windows, ve_bruteforce, ve_windows
 from egovid.synth import motions
 
 HFOV, VFOV = 98.3, 66.1

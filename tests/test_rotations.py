@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from egovid.geometry import (
+from egovid.core.rotations import (
     angle_deg,
     euler_from_matrix,
     euler_from_matrix_thesis,

@@ -6,13 +6,13 @@ import shutil
 import numpy as np
 import pytest
 
-from egovid.errors import EgovidError
-from egovid.geometry import matrix_from_euler
-from egovid.io.camera import Intrinsics
-from egovid.io.video import count_frames, iter_frames, read_frames
-from egovid.metrics.itf import ITFAccumulator
-from egovid.perception.score import score_angles
-from egovid.stabilize.fpm import (
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.errors import EgovidError
+from egovid.core.metrics.itf import ITFAccumulator
+from egovid.core.rotations import matrix_from_euler
+from egovid.core.video import count_frames, iter_frames, read_frames
+from egovid.fpv.perception.score import score_angles
+from egovid.fpv.stabilize.fpm import (
     anchor_geometry,
     ease,
     find_anchors,
@@ -20,12 +20,12 @@ from egovid.stabilize.fpm import (
     reduce_anchors,
     reduction_rates,
 )
-from egovid.stabilize.measure import pure_motion
-from egovid.stabilize.optimize import optimize_axis
-from egovid.stabilize.path import required_keep
-from egovid.stabilize.pipeline import stabilize
-from egovid.stabilize.render import homographies
-from egovid.stabilize.vidstab import run_vidstab
+from egovid.fpv.stabilize.measure import pure_motion
+from egovid.fpv.stabilize.optimize import optimize_axis
+from egovid.fpv.stabilize.path import required_keep
+from egovid.fpv.stabilize.pipeline import stabilize
+from egovid.fpv.stabilize.render import homographies
+from egovid.fpv.stabilize.vidstab import run_vidstab
 from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 
@@ -71,7 +71,7 @@ def test_optimiser_trades_stability_for_little_fpmi():
     a = motions.running(240, 10, 2.5, 24) + motions.jitter(240, (0.1, 0.1, 0.0), seed=2)
     plan = optimize_axis(a[:, 0], "yaw", 98.3, 66.1)
     e = plan.edited
-    from egovid.stabilize.lut import motion_ve
+    from egovid.fpv.stabilize.lut import motion_ve
 
     assert motion_ve(e, "yaw", _model()) > motion_ve(a[:, 0], "yaw", _model()) + 0.5
     # It keeps part of the look-around (the first-person feeling), it does not flatten it.
@@ -81,8 +81,8 @@ def test_optimiser_trades_stability_for_little_fpmi():
 def test_compiled_objective_is_eq_9_4_from_the_public_pieces():
     """The optimiser's one-call objective against eq. 9.4 assembled from the public functions
     (anchors reduced, easing from the table, eased and pure motion, the scores' own windows)."""
-    from egovid.perception.score import axis_windows
-    from egovid.stabilize.optimize import AxisModel, OptimizeOptions
+    from egovid.fpv.perception.score import axis_windows
+    from egovid.fpv.stabilize.optimize import AxisModel, OptimizeOptions
 
     a = motions.running(150, 8, 2.5, 20, 1.5) + motions.jitter(150, (0.1, 0.1, 0.1), seed=3)
     rng = np.random.default_rng(1)
@@ -111,7 +111,7 @@ def test_compiled_objective_is_eq_9_4_from_the_public_pieces():
 
 
 def _model():
-    from egovid.perception.model import ViewingModel
+    from egovid.fpv.perception.model import ViewingModel
 
     return ViewingModel()
 
@@ -202,7 +202,7 @@ def test_an_interrupt_inside_submit_waits_for_the_job_it_left_running(still_clip
     import time
     from concurrent.futures import ThreadPoolExecutor
 
-    from egovid.stabilize import render as render_mod
+    from egovid.fpv.stabilize import render as render_mod
 
     events: list[str] = []
     real_write, real_abort = render_mod.VideoWriter.write_i420, render_mod.VideoWriter.abort

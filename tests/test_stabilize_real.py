@@ -6,7 +6,7 @@ import json
 
 import av
 
-from egovid.io.video import count_frames, probe
+from egovid.core.video import count_frames, probe
 
 from conftest import run_cli
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from egovid.io.camera import Intrinsics
-from egovid.perception.model import ViewingModel
-from egovid.perception.ve2d import _Segments, grid_centres, ve2d_video
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.fpv.perception.model import ViewingModel
+from egovid.fpv.perception.ve2d import _Segments, grid_centres, ve2d_video
 
 
 def _run(flows, n, intr):

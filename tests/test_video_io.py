@@ -8,8 +8,8 @@ import av
 import numpy as np
 import pytest
 
-from egovid.errors import EgovidError
-from egovid.io.video import ColourTags, VideoWriter, count_frames, iter_frames, probe, read_frames
+from egovid.core.errors import EgovidError
+from egovid.core.video import ColourTags, VideoWriter, count_frames, iter_frames, probe, read_frames
 
 
 def _pattern(i: int, w: int = 64, h: int = 48) -> np.ndarray:

@@ -8,10 +8,10 @@ import sys
 import numpy as np
 import pytest
 
-from egovid.geometry import angle_deg, matrix_from_euler, rot_y
-from egovid.io.camera import Intrinsics
-from egovid.metrics.pose_error import pair_errors, pose_error
-from egovid.metrics.visual_error import visual_errors
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.metrics.pose_error import pair_errors, pose_error
+from egovid.core.metrics.visual_error import visual_errors
+from egovid.core.rotations import angle_deg, matrix_from_euler, rot_y
 from egovid.synth import motions
 from egovid.synth.photos import photo
 from egovid.voeval.matrices import factor_matrices
@@ -79,8 +79,8 @@ def test_visual_errors_distinguish_drift_from_jitter():
 def test_visual_errors_equal_the_itf_of_each_picture_warped_alone():
     # Independent path: each picture warped by itself (stabilised_frames) and its ITF taken frame
     # by frame (metrics.itf), against the grid's batched warps of up to four pictures at once.
-    from egovid.metrics.itf import itf
-    from egovid.metrics.visual_error import stabilised_frames
+    from egovid.core.metrics.itf import itf
+    from egovid.core.metrics.visual_error import stabilised_frames
 
     intr = Intrinsics.from_hfov(160, 120, 60)
     names = ("astronaut", "coffee", "rocket", "chelsea", "cat")  # two warp batches (4 + 1)
@@ -346,7 +346,7 @@ shutil.copy(video.parents[2] / "scenes" / "s0" / (scene + ".gt.tum"), out)
 def test_grid_on_a_dask_cluster_retries_the_cell_of_a_killed_worker(dask_scheduler, tmp_path):
     """The grid on a real scheduler + 2 workers: the odometer kills the worker running its cell
     the first time; Dask runs the cell again on a live worker and the grid completes."""
-    from egovid.engine import EngineConfig
+    from egovid.core.engine import EngineConfig
     from egovid.voeval.runner import GridConfig, load_results, run_grid
 
     mark, script = tmp_path / "killed", tmp_path / "die_once.py"

@@ -10,10 +10,10 @@ import json
 
 import numpy as np
 
-from egovid.geometry import so3_log
-from egovid.io.telemetry import read_camera_telemetry
-from egovid.io.trajectory import read_tum
-from egovid.io.video import iter_frames
+from egovid.core.camera.telemetry import read_camera_telemetry
+from egovid.core.rotations import so3_log
+from egovid.core.trajectory import read_tum
+from egovid.core.video import iter_frames
 
 from conftest import real_clip, run_cli
 

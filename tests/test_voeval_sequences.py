@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from egovid.errors import EgovidError
-from egovid.geometry import angle_deg, matrix_from_euler, so3_exp, so3_log
-from egovid.io.trajectory import Trajectory, read_tum, write_tum
-from egovid.io.video import iter_frames
+from egovid.core.errors import EgovidError
+from egovid.core.rotations import angle_deg, matrix_from_euler, so3_exp, so3_log
+from egovid.core.trajectory import Trajectory, read_tum, write_tum
+from egovid.core.video import iter_frames
 from egovid.voeval.sequences import longest_run, match_reference, parse_specs
 
 from conftest import assert_one_error, real_clip, run_cli

@@ -18,7 +18,7 @@ import typer
 from rich.markup import escape
 
 from egovid.cli.common import err_console
-from egovid.errors import user_error
+from egovid.core.errors import user_error
 
 app = typer.Typer(
     name="egovid",
@@ -116,7 +116,7 @@ _STATE = {"pid": 0, "interrupted": False}
 
 
 def _on_signal(signum: int, frame) -> None:
-    from egovid.io.files import remove_temp_files
+    from egovid.core.files import remove_temp_files
 
     if os.getpid() != _STATE["pid"]:  # a forked worker: tidy up and die as the signal would have it
         remove_temp_files()
@@ -153,7 +153,7 @@ def _usage_error(exc) -> str:
 
 def run(args: list[str] | None = None) -> int:
     """Run the CLI with ``args`` (default: ``sys.argv[1:]``); returns the exit status."""
-    from egovid.io.files import remove_temp_files
+    from egovid.core.files import remove_temp_files
 
     try:
         rv = command().main(args=args, prog_name="egovid", standalone_mode=False)

@@ -18,7 +18,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from egovid.errors import EgovidError
+from egovid.core.errors import EgovidError
 
 console = Console()
 err_console = Console(stderr=True)
@@ -34,11 +34,11 @@ ALLOW_TRUNCATED = typer.Option(
 def all_or_nothing(command: Callable) -> Callable:
     """Decorate a command whose outputs must appear together or not at all: if it fails after
     writing some of them (disk full, an interruption), the files it created are removed and the
-    files it replaced are put back (see :func:`egovid.io.files.output_transaction`)."""
+    files it replaced are put back (see :func:`egovid.core.files.output_transaction`)."""
 
     @functools.wraps(command)
     def run(*args, **kwargs):
-        from egovid.io.files import output_transaction
+        from egovid.core.files import output_transaction
 
         with output_transaction():
             return command(*args, **kwargs)

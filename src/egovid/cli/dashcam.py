@@ -16,7 +16,7 @@ app = typer.Typer(
 
 
 def _open(archive: Path):
-    from egovid.dashcam.store import open_archive
+    from egovid.dashcam.archive.store import open_archive
 
     return open_archive(archive)
 
@@ -24,8 +24,8 @@ def _open(archive: Path):
 def _user_drive(ar, key: str):
     """A drive by name or id, as the user sees the archive: not one a forget hid (kept only for
     the frames other drives are coded against)."""
-    from egovid.dashcam.fleetstore import hidden_drive_ids
-    from egovid.errors import EgovidError
+    from egovid.core.errors import EgovidError
+    from egovid.dashcam.archive.fleetstore import hidden_drive_ids
 
     d = ar.catalogue.drive(key)
     hidden = hidden_drive_ids(ar.catalogue)
@@ -59,10 +59,10 @@ def init(
     in an object store (--blobs); the folder then holds only the marker that names them.
     """
     from egovid.cli.validate import output_folder
-    from egovid.dashcam.catalogue import redact_url
-    from egovid.dashcam.fleetstore import FleetStore
-    from egovid.dashcam.store import Archive
-    from egovid.dashcam.vpx import self_test
+    from egovid.dashcam.archive.catalogue import redact_url
+    from egovid.dashcam.archive.fleetstore import FleetStore
+    from egovid.dashcam.archive.store import Archive
+    from egovid.dashcam.codec.vpx import self_test
 
     output_folder(archive, what="archive folder")
     ar = Archive.create(archive, db, blobs, setup=FleetStore)  # the fleet tables (PostGIS where the server has it)
@@ -162,12 +162,12 @@ def ingest(
     crash changes nothing for that drive. Files that cannot be used are listed with the reason.
     """
     from egovid.cli import validate
-    from egovid.dashcam.fleet_ingest import drive_input, prepare
+    from egovid.core.engine import EngineConfig, scheduler_address
+    from egovid.core.errors import EgovidError
     from egovid.dashcam.ingest import IngestOptions
+    from egovid.dashcam.ingest.fleet import drive_input, prepare
     from egovid.dashcam.ingest.run import ingest_drive, ingest_many, plan_batch
-    from egovid.dashcam.sources import ClockOptions, plan_ingest
-    from egovid.engine import EngineConfig, scheduler_address
-    from egovid.errors import EgovidError
+    from egovid.dashcam.ingest.sources import ClockOptions, plan_ingest
 
     validate.number(gps_offset, "--gps-offset", lo=-7 * 86400, hi=7 * 86400, unit="s")
     validate.number(tz_offset, "--tz-offset", lo=-14, hi=14, unit="hours")
@@ -211,7 +211,7 @@ def ingest(
         if any(why.startswith("already in the archive") for _f, why in plan.skipped):
             # The same card again (a sync job): nothing new is not a failure (the rest is listed above).
             if json_out is not None:
-                from egovid.io.files import atomic_write_text
+                from egovid.core.files import atomic_write_text
 
                 atomic_write_text(json_out, json.dumps({"drives": [], "failed": [], "skipped": skipped}, indent=1))
             console.print("nothing new: the drives of these videos are already in the archive")
@@ -224,7 +224,7 @@ def ingest(
             rep = ingest_drive(ar, drives[0], opts, progress=cb)
         _print_report(rep, fleet.get(rep.name))
         if json_out is not None:
-            from egovid.io.files import atomic_write_text
+            from egovid.core.files import atomic_write_text
 
             doc = {**rep.to_dict(), **fleet[rep.name].summary(), "skipped": skipped}
             atomic_write_text(json_out, json.dumps(doc, indent=1, default=str))
@@ -244,7 +244,7 @@ def ingest(
                 console.print(f"[red]drive {res.name!r} not added[/]: {res.error}")
             cb("drives", len(results) + len(failed), len(batch.jobs))
     if json_out is not None:
-        from egovid.io.files import atomic_write_text
+        from egovid.core.files import atomic_write_text
 
         doc = {
             "drives": [{**r.to_dict(), **fleet[r.name].summary()} for r in results],
@@ -284,7 +284,7 @@ def list_cmd(archive: Path = typer.Argument(..., help="Archive folder.")) -> Non
 
     from rich.table import Table
 
-    from egovid.dashcam.fleetstore import hidden_drive_ids
+    from egovid.dashcam.archive.fleetstore import hidden_drive_ids
 
     ar = _open(archive)
     t = Table(title=str(archive))
@@ -340,7 +340,7 @@ def extract(
     random-access point before it (every 24 frames by default), in this drive and in the older
     drives it was coded against.
     """
-    from egovid.errors import EgovidError
+    from egovid.core.errors import EgovidError
 
     ar = _open(archive)
     check_output(out, exts=".mkv .mp4")
@@ -351,8 +351,8 @@ def extract(
         raise EgovidError(
             f"--start {start} s is past the end of drive {d.name} ({d.frames / d.fps:.1f} s)", "choose an earlier start"
         )
+    from egovid.dashcam.archive.fleetstore import extract_extras
     from egovid.dashcam.extract import extract_video
-    from egovid.dashcam.fleetstore import extract_extras
 
     with staged_progress() as cb:
         extract_video(ar, d, out, progress=lambda k, n: cb("extract", k, n), frames=(f0, f1), **extract_extras(ar, d))
@@ -435,14 +435,14 @@ def report(
     console.print(t)
     console.print(f"bitstreams in {rep['blobs']}: {rep['blob_bytes'] / 1024:.0f} KiB; {rep['codec']}")
     if json_out is not None:
-        from egovid.io.files import atomic_write_text
+        from egovid.core.files import atomic_write_text
 
         atomic_write_text(json_out, json.dumps(rep, indent=1, default=str))
     if html_out is not None:
-        from egovid.dashcam.fleetstore import FleetStore
+        from egovid.core.files import atomic_write_text
+        from egovid.dashcam.archive.fleetstore import FleetStore
         from egovid.dashcam.mapdata import map_drives
         from egovid.dashcam.mapview import OSM_TILES, render_map
-        from egovid.io.files import atomic_write_text
 
         drives, missing = map_drives(ar, FleetStore(ar.catalogue))
         url = {"osm": OSM_TILES, "none": None}.get(tiles, tiles)
@@ -458,7 +458,7 @@ def report(
 
 
 def _fleet(archive: Path):
-    from egovid.dashcam.fleetstore import FleetStore
+    from egovid.dashcam.archive.fleetstore import FleetStore
 
     ar = _open(archive)
     return ar, FleetStore(ar.catalogue)
@@ -468,7 +468,7 @@ def _utc(text: str, option: str) -> float:
     """``--at``/``--from``/``--to``: ISO 8601 (``2024-05-04T08:00:00Z``, ``+02:00``; no zone = UTC)."""
     import datetime as dt
 
-    from egovid.errors import EgovidError
+    from egovid.core.errors import EgovidError
 
     try:
         t = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
@@ -478,7 +478,7 @@ def _utc(text: str, option: str) -> float:
 
 
 def _floats(text: str, n: int, option: str, example: str) -> tuple[float, ...]:
-    from egovid.errors import EgovidError
+    from egovid.core.errors import EgovidError
 
     try:
         vals = tuple(float(v) for v in text.split(","))
@@ -494,7 +494,7 @@ def _write_json(target: str, obj) -> None:
     if target == "-":
         typer.echo(json.dumps(obj, indent=1, default=str))
         return
-    from egovid.io.files import atomic_write_text
+    from egovid.core.files import atomic_write_text
 
     atomic_write_text(Path(target), json.dumps(obj, indent=1, default=str))
 
@@ -520,8 +520,8 @@ def find_cmd(
     from rich.table import Table
 
     from egovid.cli import validate
-    from egovid.dashcam.clock import iso
     from egovid.dashcam.find import Query, search
+    from egovid.dashcam.route.clock import iso
 
     q = Query(
         near=_floats(near, 2, "--near", "48.1372,11.5756") if near else None,
@@ -616,9 +616,9 @@ def forget_cmd(
     changes, unless --no-verify). One transaction: a forget that is killed changes nothing, or
     leaves only unreferenced bitstreams for `egovid dashcam gc`.
     """
+    from egovid.core.errors import EgovidError
     from egovid.dashcam.forget import choose, forget_drives
     from egovid.dashcam.retention import parse_duration, parse_size
-    from egovid.errors import EgovidError
 
     age = parse_duration(older_than) if older_than else None
     budget = parse_size(keep_bytes) if keep_bytes else None
@@ -696,8 +696,8 @@ def check(
     Prints what it found; exits with status 2 when something cannot be read back.
     """
     from egovid.cli.validate import input_folder, writable_folder
-    from egovid.dashcam.integrity import check_archive
-    from egovid.errors import EgovidError
+    from egovid.core.errors import EgovidError
+    from egovid.dashcam.check import check_archive
 
     input_folder(archive, "archive folder")
     if repair:  # it may write: refused up front on a read-only disk (a plain check works there)

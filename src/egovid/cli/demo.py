@@ -24,14 +24,14 @@ def demo(
     import numpy as np
 
     from egovid.cli.validate import output_folder
-    from egovid.io.files import atomic_write_text
-    from egovid.io.trajectory import read_motion_csv, write_motion_csv, write_tum
-    from egovid.motion.estimate import estimate_motion
-    from egovid.perception.score import score_angles
-    from egovid.perception.ve2d import ve2d_video
-    from egovid.plots import plot_angles, plot_scores
-    from egovid.stabilize.pipeline import stabilize
-    from egovid.stabilize.report import write_report
+    from egovid.core.files import atomic_write_text
+    from egovid.core.motion.estimate import estimate_motion
+    from egovid.core.plots import plot_angles, plot_scores
+    from egovid.core.trajectory import read_motion_csv, write_motion_csv, write_tum
+    from egovid.fpv.perception.score import score_angles
+    from egovid.fpv.perception.ve2d import ve2d_video
+    from egovid.fpv.stabilize.pipeline import stabilize
+    from egovid.fpv.stabilize.report import write_report
     from egovid.synth import motions
     from egovid.synth.fpv import render_fpv
 
@@ -113,10 +113,10 @@ def demo(
 def _dashcam(folder: Path, quick: bool) -> None:
     import shutil
 
+    from egovid.dashcam.archive.store import Archive
     from egovid.dashcam.extract import extract_video
     from egovid.dashcam.ingest import IngestOptions, ingest
     from egovid.dashcam.report import archive_report
-    from egovid.dashcam.store import Archive
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
     folder.mkdir(parents=True, exist_ok=True)

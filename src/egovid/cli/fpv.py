@@ -41,7 +41,7 @@ def source_option():
 
 def check_source(source: str) -> None:
     """Refuse an unknown ``--source`` before any work."""
-    from egovid.motion.source import SOURCES
+    from egovid.core.motion.source import SOURCES
 
     choice(source, "--source", SOURCES)
 
@@ -83,10 +83,10 @@ def motion(
     """
     import json
 
-    from egovid.io.files import atomic_write_text
-    from egovid.io.trajectory import write_motion_csv, write_tum
-    from egovid.motion.estimate import MotionOptions
-    from egovid.motion.source import camera_motion
+    from egovid.core.files import atomic_write_text
+    from egovid.core.motion.estimate import MotionOptions
+    from egovid.core.motion.source import camera_motion
+    from egovid.core.trajectory import write_motion_csv, write_tum
 
     video_input(video, allow_truncated=allow_truncated)
     json_out = json_out or out.parent / (out.stem + ".json")
@@ -128,9 +128,9 @@ def motion(
     console.print(f"TUM          {tum}")
     console.print(f"JSON         {json_out}")
     if plot is not None:
-        from egovid.io.trajectory import Trajectory
-        from egovid.motion import gyro as gyro_mod
-        from egovid.plots import plot_angles
+        from egovid.core.motion import gyro as gyro_mod
+        from egovid.core.plots import plot_angles
+        from egovid.core.trajectory import Trajectory
 
         curves = {cm.source: cm.trajectory.euler()}
         if cm.vision is not None and cm.source != "vision":
@@ -177,12 +177,12 @@ def score(
 
     import numpy as np
 
-    from egovid.errors import EgovidError
-    from egovid.io.camera import resolve_intrinsics
-    from egovid.io.files import atomic_write_text
-    from egovid.io.trajectory import read_motion_csv, write_motion_csv
-    from egovid.perception.model import ViewingModel
-    from egovid.perception.score import score_angles
+    from egovid.core.camera.intrinsics import resolve_intrinsics
+    from egovid.core.errors import EgovidError
+    from egovid.core.files import atomic_write_text
+    from egovid.core.trajectory import read_motion_csv, write_motion_csv
+    from egovid.fpv.perception.model import ViewingModel
+    from egovid.fpv.perception.score import score_angles
 
     methods = ("ve", "sve", "ve2d") if method == "all" else (method,)
     for m in methods:
@@ -212,7 +212,7 @@ def score(
     traj = None
     camera = None
     if video is not None:
-        from egovid.io.camera import resolve_camera
+        from egovid.core.camera.intrinsics import resolve_camera
 
         camera = resolve_camera(video, focal, hfov)
         intr = camera.intrinsics
@@ -233,7 +233,7 @@ def score(
     )
     if traj is None and any(m in ("ve", "sve") for m in methods):
         from egovid.cli.common import staged_progress
-        from egovid.motion.source import camera_motion
+        from egovid.core.motion.source import camera_motion
 
         with staged_progress() as cb:
             cm = camera_motion(video, source, focal=focal, hfov=hfov, progress=cb)
@@ -243,7 +243,7 @@ def score(
             write_motion_csv(save_motion, traj, cm.confidence)
     for m in methods:
         if m == "ve2d":
-            from egovid.perception.ve2d import ve2d_video
+            from egovid.fpv.perception.ve2d import ve2d_video
 
             with progress_bar("2D-VE", info.frame_count) as update:
                 results[m] = ve2d_video(video, intr, model2d, progress=update)
@@ -280,7 +280,7 @@ def score(
         atomic_write_text(json_out, json.dumps(doc, indent=1))
         console.print(f"JSON  {json_out}")
     if plot is not None:
-        from egovid.plots import plot_scores
+        from egovid.core.plots import plot_scores
 
         plot_scores(plot, results, f"Viewing experience of {(video or motion).name}")
         console.print(f"plot  {plot}")
@@ -331,12 +331,12 @@ def stabilize_cmd(
     """
     import json
 
-    from egovid.errors import EgovidError
-    from egovid.io.files import atomic_write_text
-    from egovid.io.trajectory import Trajectory, read_motion_csv, write_motion_csv
-    from egovid.stabilize.optimize import OptimizeOptions
-    from egovid.stabilize.pipeline import stabilize
-    from egovid.stabilize.render import BORDERS
+    from egovid.core.errors import EgovidError
+    from egovid.core.files import atomic_write_text
+    from egovid.core.trajectory import Trajectory, read_motion_csv, write_motion_csv
+    from egovid.fpv.stabilize.optimize import OptimizeOptions
+    from egovid.fpv.stabilize.pipeline import stabilize
+    from egovid.fpv.stabilize.render import BORDERS
 
     if borders not in BORDERS:
         raise EgovidError(f"unknown border mode {borders!r}", f"choose one of {', '.join(BORDERS)}")
@@ -356,12 +356,12 @@ def stabilize_cmd(
         (json_out, JSON, "JSON"),
         *((p, CSV, "motion CSV") for p in pre),
     )
-    from egovid.io.camera import resolve_camera
+    from egovid.core.camera.intrinsics import resolve_camera
 
     intr = resolve_camera(src, focal, hfov).intrinsics
     traj = read_motion_csv(motion) if motion is not None else None
     if traj is not None and len(traj) != info.frame_count:
-        from egovid.io.video import count_frames
+        from egovid.core.video import count_frames
 
         n = count_frames(src)
         if len(traj) != n:
@@ -370,7 +370,7 @@ def stabilize_cmd(
             )
     with staged_progress() as cb:
         if traj is None:
-            from egovid.motion.source import camera_motion
+            from egovid.core.motion.source import camera_motion
 
             cm = camera_motion(src, source, focal=focal, hfov=hfov, progress=cb)
             traj, intr = cm.trajectory, cm.camera.intrinsics
@@ -423,7 +423,7 @@ def stabilize_cmd(
         atomic_write_text(json_out, json.dumps(s, indent=1, default=float))
         console.print(f"JSON    {json_out}")
     if report is not None:
-        from egovid.stabilize.report import write_report
+        from egovid.fpv.stabilize.report import write_report
 
         write_report(report, res, str(src), intr, info.fps)
         console.print(f"report  {report}")

@@ -9,7 +9,7 @@ import typer
 
 from egovid.cli.common import all_or_nothing, console, parse_size, progress_bar
 from egovid.cli.validate import CSV, TUM, VIDEO_OUT, choice, number, outputs
-from egovid.errors import EgovidError
+from egovid.core.errors import EgovidError
 
 app = typer.Typer(help="Make synthetic test videos with known ground truth.", no_args_is_help=True)
 
@@ -40,7 +40,7 @@ def synth_fpv(
     Writes OUT plus OUT-stem.gt.csv (frame,time,yaw,pitch,roll in degrees) and OUT-stem.gt.tum.
     Example: egovid synth fpv shaky.mp4 --motion running --yaw-amp 10 --pitch-amp 2.5
     """
-    from egovid.io.camera import resolve_intrinsics
+    from egovid.core.camera.intrinsics import resolve_intrinsics
     from egovid.synth import motions
     from egovid.synth.fpv import ground_truth_paths, render_fpv
     from egovid.synth.photos import ALL
@@ -116,7 +116,7 @@ def synth_drive(
     """
     import datetime as dt
 
-    from egovid.errors import EgovidError
+    from egovid.core.errors import EgovidError
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
     choice(gps, "--gps", ("gpx", "nmea", "csv"))

@@ -18,7 +18,7 @@ import shutil
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
-from egovid.errors import EgovidError
+from egovid.core.errors import EgovidError
 
 VIDEO_OUT = ".mp4 .mkv .mov .m4v"  # what egovid writes H.264 (or FFV1) into
 CSV = ".csv"
@@ -64,8 +64,8 @@ def input_folder(path: Path, what: str = "folder") -> Path:
 
 def video_input(path: Path, *, allow_truncated: bool = False):
     """A video input: a readable file that FFmpeg decodes and that holds every frame its container
-    lists (see :func:`egovid.io.video.probe`). Returns its :class:`~egovid.io.video.VideoInfo`."""
-    from egovid.io.video import probe
+    lists (see :func:`egovid.core.video.probe`). Returns its :class:`~egovid.core.video.VideoInfo`."""
+    from egovid.core.video import probe
 
     input_file(path, "video")
     return probe(path, allow_truncated=allow_truncated)
@@ -73,8 +73,8 @@ def video_input(path: Path, *, allow_truncated: bool = False):
 
 def gps_input(path: Path):
     """A GPS track: a readable GPX, NMEA or CSV file with at least two finite fixes. Returns the
-    :class:`~egovid.dashcam.gps.GpsTrack`."""
-    from egovid.dashcam.gps import read_track
+    :class:`~egovid.dashcam.route.tracks.GpsTrack`."""
+    from egovid.dashcam.route.tracks import read_track
 
     input_file(path, "GPS file")
     return read_track(path)

@@ -77,7 +77,7 @@ def run(
     score pose error, OITF and RITF."""
     from egovid.cli.common import parse_ints, parse_size
     from egovid.cli.validate import output_folder
-    from egovid.engine import EngineConfig, scheduler_address
+    from egovid.core.engine import EngineConfig, scheduler_address
     from egovid.voeval.runner import (
         DEFAULT_FRAMES,
         DEFAULT_SIZE,
@@ -129,7 +129,7 @@ def report_cmd(
 ) -> None:
     """Factor matrices, rotation plots and the "which VO for my application and factor" table
     (HTML + Markdown + matrices.json)."""
-    from egovid.errors import EgovidError
+    from egovid.core.errors import EgovidError
     from egovid.voeval.matrices import NORMS
     from egovid.voeval.report import write_report
 

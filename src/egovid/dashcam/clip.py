@@ -19,14 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.dashcam.catalogue import Drive
-from egovid.dashcam.clock import iso
+from egovid.core.errors import EgovidError
+from egovid.core.files import atomic_write_text
+from egovid.dashcam.archive.catalogue import Drive
+from egovid.dashcam.archive.fleetstore import FleetStore
+from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.find import Query, frame_positions, stretches
-from egovid.dashcam.fleetstore import FleetStore
-from egovid.dashcam.gps import project
-from egovid.dashcam.store import Archive
-from egovid.errors import EgovidError
-from egovid.io.files import atomic_write_text
+from egovid.dashcam.route.clock import iso
+from egovid.dashcam.route.tracks import project
 
 
 @dataclass
@@ -138,8 +138,8 @@ def write_clip(
     progress=None,
 ) -> dict:
     """Write the clip and its GPX (see the module docstring); returns what was written."""
+    from egovid.core.video import ColourTags
     from egovid.dashcam.extract import extract_video
-    from egovid.io.video import ColourTags
 
     out = Path(out)
     if out.suffix.lower() != ".mp4":

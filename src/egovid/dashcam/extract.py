@@ -22,11 +22,12 @@ from typing import Protocol, TypeVar
 
 import numpy as np
 
-from egovid.dashcam import codec, vpx
-from egovid.dashcam.blobs import BlobStore
-from egovid.dashcam.catalogue import Drive, Segment
-from egovid.errors import EgovidError
-from egovid.io.video import VideoWriter
+from egovid.core.errors import EgovidError
+from egovid.core.video import VideoWriter
+from egovid.dashcam.archive.blobs import BlobStore
+from egovid.dashcam.archive.catalogue import Drive, Segment
+from egovid.dashcam.codec import segment as codec
+from egovid.dashcam.codec import vpx
 
 DAMAGED = "the archive or one of its reference drives is damaged"
 
@@ -321,7 +322,7 @@ def extract_video(
     output with; ``streams``: the drive's archived audio and telemetry (dashcam/streams.py), copied
     for the same stretch (``audio_codec``: re-encode the audio, e.g. ``aac``); ``crf``: an MP4 for
     sharing (H.264 at this quality) instead of a lossless one."""
-    from egovid.dashcam.streams import StreamCopier
+    from egovid.dashcam.codec.streams import StreamCopier
 
     out = Path(out)
     ext = out.suffix.lower()
@@ -333,7 +334,7 @@ def extract_video(
             f"frames {f0}-{f1 - 1} are not in drive {drive.name} (frames 0-{drive.frames - 1})",
             "choose a range inside the drive (see `egovid dashcam show`)",
         )
-    from egovid.dashcam.integrity import check_chain
+    from egovid.dashcam.check import check_chain
 
     check_chain(source, drive.id)
     codec_name, options = ("ffv1", None) if ext == ".mkv" else ("libx264", {"qp": "0", "preset": "ultrafast"})

@@ -1,7 +1,7 @@
 """``dashcam find``: which stretches of which drives were near a place, inside a box, or in a time
 window.
 
-The catalogue's spatial index (:meth:`~egovid.dashcam.fleetstore.FleetStore.candidates`: an SQLite
+The catalogue's spatial index (:meth:`~egovid.dashcam.archive.fleetstore.FleetStore.candidates`: an SQLite
 R*Tree, or PostGIS / a GiST index in PostgreSQL, over chunks of each drive's GPS track in longitude,
 latitude and time) names the drives that may match; :func:`stretches` then decides frame by frame
 on the drive's own track: each frame's position is the GPS track interpolated at the frame's UTC
@@ -17,8 +17,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from egovid.dashcam.gps import project
-from egovid.errors import EgovidError
+from egovid.core.errors import EgovidError
+from egovid.dashcam.route.tracks import project
 
 
 @dataclass(frozen=True)
@@ -96,7 +96,7 @@ class Stretch:
         return self.frame_end - self.frame_start
 
     def to_dict(self) -> dict:
-        from egovid.dashcam.clock import iso
+        from egovid.dashcam.route.clock import iso
 
         d = asdict(self)
         d.update(frames=self.frames, start=iso(self.start_utc), end=iso(self.end_utc))

@@ -27,13 +27,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-from egovid.dashcam import codec
-from egovid.dashcam.catalogue import Drive, Segment
+from egovid.core.errors import EgovidError
+from egovid.dashcam.archive.catalogue import Drive, Segment
+from egovid.dashcam.archive.fleetstore import FleetStore
+from egovid.dashcam.archive.store import Archive
+from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.extract import SegmentSnapshot, segment_digest
-from egovid.dashcam.fleetstore import FleetStore
 from egovid.dashcam.retention import DriveAge, ForgetPlan, SegmentRef, older_than, over_budget, plan_forget
-from egovid.dashcam.store import Archive
-from egovid.errors import EgovidError
 
 Say = Callable[[str], None]
 

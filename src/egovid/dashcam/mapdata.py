@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from egovid.dashcam.clock import iso
-from egovid.dashcam.fleetstore import FleetStore
+from egovid.dashcam.archive.fleetstore import FleetStore
+from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.mapview import MapDrive, MapStretch
-from egovid.dashcam.store import Archive
+from egovid.dashcam.route.clock import iso
 
 
 def _kib(n: float) -> str:

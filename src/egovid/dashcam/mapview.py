@@ -27,7 +27,7 @@ from importlib import resources
 
 import numpy as np
 
-from egovid.dashcam.gps import project
+from egovid.dashcam.route.tracks import project
 
 OSM_TILES = "https://tile.openstreetmap.org/{z}/{x}/{y}.png"
 OSM_ATTRIBUTION = '&copy; <a href="https://www.openstreetmap.org/copyright">OpenStreetMap</a> contributors'

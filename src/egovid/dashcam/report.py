@@ -3,8 +3,8 @@ dashcam report``; a table or JSON)."""
 
 from __future__ import annotations
 
-from egovid.dashcam import vpx
-from egovid.dashcam.store import Archive
+from egovid.dashcam.archive.store import Archive
+from egovid.dashcam.codec import vpx
 
 
 def archive_report(archive: Archive) -> dict:

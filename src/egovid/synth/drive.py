@@ -26,11 +26,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from egovid.errors import EgovidError
-from egovid.geometry import rot_x, rot_y, rot_z
-from egovid.io.camera import Intrinsics
-from egovid.io.files import atomic_write_text
-from egovid.io.video import VideoWriter
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.errors import EgovidError
+from egovid.core.files import atomic_write_text
+from egovid.core.rotations import rot_x, rot_y, rot_z
+from egovid.core.video import VideoWriter
 from egovid.synth.street import StreetScene, build_scene, render_kernel
 
 #: Map origin (latitude, longitude in degrees): West Lafayette, Indiana.

@@ -14,10 +14,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from egovid.errors import EgovidError
-from egovid.io.camera import Intrinsics
-from egovid.io.trajectory import Trajectory, write_motion_csv, write_tum
-from egovid.io.video import VideoWriter
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.errors import EgovidError
+from egovid.core.trajectory import Trajectory, write_motion_csv, write_tum
+from egovid.core.video import VideoWriter
 from egovid.synth.panorama import build_panorama
 from egovid.synth.photos import ALL, photo
 from egovid.synth.render import SphereRenderer

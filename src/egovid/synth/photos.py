@@ -58,7 +58,7 @@ def _load(name: str) -> np.ndarray:
 def photo(name: str) -> np.ndarray:
     """A bundled photo as an HxWx3 BGR uint8 array (a copy)."""
     if name not in ALL:
-        from egovid.errors import EgovidError
+        from egovid.core.errors import EgovidError
 
         raise EgovidError(f"unknown photo {name!r}", f"choose one of: {', '.join(ALL)}")
     return _load(name).copy()

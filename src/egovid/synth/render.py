@@ -2,7 +2,7 @@
 
 :class:`SphereRenderer` paints an equirectangular panorama on a sphere around the origin and
 renders pinhole views of it for a camera orientation (camera-to-world ``R``, see
-:mod:`egovid.geometry.rotations`) and position. With the camera at the centre the views are those
+:mod:`egovid.core.rotations`) and position. With the camera at the centre the views are those
 of a pure rotation; moving it (e.g. slowly forward) adds real parallax, as two-view odometers
 need.
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from egovid.io.camera import Intrinsics
+from egovid.core.camera.intrinsics import Intrinsics
 
 
 class SphereRenderer:

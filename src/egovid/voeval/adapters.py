@@ -33,10 +33,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from egovid.geometry import project_to_so3
-from egovid.io.camera import Intrinsics
-from egovid.io.trajectory import read_trajectory
-from egovid.io.video import iter_frames
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.rotations import project_to_so3
+from egovid.core.trajectory import read_trajectory
+from egovid.core.video import iter_frames
 
 OPENGL_TO_CV = np.diag([1.0, -1.0, -1.0])
 
@@ -120,7 +120,7 @@ class EgovidVO(VisualOdometer):
     assumes_pure_rotation = True
 
     def run(self, video, intr, workdir) -> VOResult:
-        from egovid.motion.estimate import MotionOptions, estimate_motion
+        from egovid.core.motion.estimate import MotionOptions, estimate_motion
 
         est = estimate_motion(video, intr, MotionOptions(threads=1))
         n = len(est.trajectory)
@@ -253,7 +253,7 @@ class WorkerVO(VisualOdometer):
         return R, valid
 
     def run(self, video, intr, workdir) -> VOResult:
-        from egovid.io.video import count_frames, probe
+        from egovid.core.video import count_frames, probe
 
         if self.reads_video:
             source = video
@@ -440,7 +440,7 @@ class TruthVO(VisualOdometer):
             self.name = "drift"
 
     def run(self, video, intr, workdir) -> VOResult:
-        from egovid.geometry import rot_y
+        from egovid.core.rotations import rot_y
 
         R = self.truth(video)
         if self.drift:
@@ -454,7 +454,7 @@ BUILTIN = {"egovid": EgovidVO, "ecc": EccVO, "monovo": MonoVO, "colmap": ColmapV
 
 def timed_run(vo: VisualOdometer, video: Path, intr: Intrinsics, workdir: Path) -> VOResult:
     """Run a VO, turning any exception into a ``failed`` result."""
-    from egovid.io.video import count_frames
+    from egovid.core.video import count_frames
 
     workdir.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
@@ -476,7 +476,7 @@ def available_vos() -> list[str]:
 
 def split_command(command: str, index: int) -> tuple[str, str]:
     """``"[NAME=]template"`` of ``--vo-cmd`` -> (name, template); unnamed: ``cmd1``, ``cmd2``..."""
-    from egovid.errors import EgovidError
+    from egovid.core.errors import EgovidError
 
     head = command.split(" ")[0]
     name, _, tmpl = command.partition("=") if "=" in head else (f"cmd{index + 1}", "", command)
@@ -491,7 +491,7 @@ def split_command(command: str, index: int) -> tuple[str, str]:
 
 def make_vos(names: list[str], commands: list[str] | None = None) -> list[VisualOdometer]:
     """Odometers by name (``egovid, ecc, monovo, colmap, orbslam3``) plus external commands."""
-    from egovid.errors import EgovidError
+    from egovid.core.errors import EgovidError
 
     out: list[VisualOdometer] = []
     for n in names:

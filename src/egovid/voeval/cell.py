@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.io.files import atomic_write_text
-from egovid.io.trajectory import Trajectory, write_tum
-from egovid.metrics.pose_error import pose_error
-from egovid.metrics.visual_error import visual_errors
+from egovid.core.files import atomic_write_text
+from egovid.core.metrics.pose_error import pose_error
+from egovid.core.metrics.visual_error import visual_errors
+from egovid.core.trajectory import Trajectory, write_tum
 from egovid.voeval.layout import cell_path, scene_dir, video_path
 from egovid.voeval.scenes import SceneTruth
 

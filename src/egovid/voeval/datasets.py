@@ -36,8 +36,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from egovid.errors import EgovidError
-from egovid.geometry import project_to_so3
+from egovid.core.errors import EgovidError
+from egovid.core.rotations import project_to_so3
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 

@@ -24,8 +24,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from egovid.geometry import so3_exp, so3_log
-from egovid.io.video import iter_frames
+from egovid.core.rotations import so3_exp, so3_log
+from egovid.core.video import iter_frames
 from egovid.synth import effects
 from egovid.voeval.scenes import SceneTruth, lossless_writer
 
@@ -72,7 +72,7 @@ def degrade_scene(src: Path, truth: SceneTruth, factor: str, seed: int, dst: Pat
                 g = float(illumination_gain(np.array([f.time]), phase)[0])
                 img = np.clip(img.astype(np.float32) * g + 0.5, 0, 255).astype(np.uint8)
             else:
-                from egovid.errors import EgovidError
+                from egovid.core.errors import EgovidError
 
                 raise EgovidError(f"unknown real-frame factor {factor!r}", f"choose from {', '.join(REAL_FACTORS)}")
             wr.write(img, float(truth.times[k]) if k < len(truth.times) else f.time)

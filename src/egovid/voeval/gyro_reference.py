@@ -2,7 +2,7 @@
 
 No dataset and no motion capture: the camera's gyroscope (GoPro GPMF, Sony, Insta360, DJI,
 read by telemetry-parser) is integrated into per-frame orientations. The gyro and the picture are
-lined up by the fpv motion code (:func:`egovid.motion.source.camera_motion`, the one sync of the
+lined up by the fpv motion code (:func:`egovid.core.motion.source.camera_motion`, the one sync of the
 project): the time offset (correlation of angular speeds), the IMU-to-camera axes (a signed
 permutation, or the least-squares rotation), a constant gyro bias and the focal length (the slope
 of vision's rotations on the gyro's) are estimated against egovid's own vision estimate; the
@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.errors import EgovidError
-from egovid.io.camera import Intrinsics
-from egovid.io.video import iter_frames
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.errors import EgovidError
+from egovid.core.video import iter_frames
 from egovid.voeval.scenes import SceneTruth, lossless_writer
 
 #: Motion sources whose trajectory is a camera's own sensor (not vision).
@@ -63,8 +63,8 @@ def still_bias(times: np.ndarray, gyro: np.ndarray) -> tuple[np.ndarray, float]:
 
 def check_gyro_video(path: Path) -> None:
     """Raise :class:`EgovidError` unless ``path`` is a video with an embedded gyro."""
-    from egovid.io.telemetry import read_camera_telemetry
-    from egovid.io.video import probe
+    from egovid.core.camera.telemetry import read_camera_telemetry
+    from egovid.core.video import probe
 
     probe(path)
     if not read_camera_telemetry(path).has_gyro:
@@ -79,7 +79,7 @@ def import_gyro_sequence(spec, video: Path, max_frames: int | None = None) -> Sc
     of format ``gyro``) as a lossless video at ``video``; return their reference (the synced,
     integrated gyro, frame 0 = identity) with the fitted camera. Raises :class:`EgovidError`
     when the gyro does not match the picture (sync correlation below the trusted level)."""
-    from egovid.motion.source import camera_motion
+    from egovid.core.motion.source import camera_motion
 
     motion = camera_motion(spec.path, "auto")
     if motion.source not in _SENSOR_SOURCES:
@@ -91,8 +91,8 @@ def import_gyro_sequence(spec, video: Path, max_frames: int | None = None) -> Sc
     traj = motion.trajectory
     bias_meta = {}
     if motion.source == "gyro":  # the gyro again, with the bias of its still parts, not vision's
-        from egovid.io.trajectory import Trajectory
-        from egovid.motion import gyro as gyro_mod
+        from egovid.core.motion import gyro as gyro_mod
+        from egovid.core.trajectory import Trajectory
 
         imu = motion.telemetry.imu
         bias, still_s = still_bias(imu.times, imu.gyro)

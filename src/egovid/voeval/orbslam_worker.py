@@ -65,7 +65,7 @@ def main() -> None:
     import numpy as np
     import pyorbslam3
 
-    from egovid.io.video import iter_frames
+    from egovid.core.video import iter_frames
 
     video, out, vocab = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
     fx, fy, cx, cy, width, height, fps = sys.argv[4:11]

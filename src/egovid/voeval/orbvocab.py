@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from egovid.io.files import atomic_write_text
+from egovid.core.files import atomic_write_text
 from egovid.synth.photos import ALL, photo
 
 K, L = 10, 4

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.io.files import atomic_write_text
-from egovid.io.trajectory import Trajectory, read_tum
-from egovid.plots import plt, save
+from egovid.core.files import atomic_write_text
+from egovid.core.plots import plt, save
+from egovid.core.trajectory import Trajectory, read_tum
 from egovid.voeval.layout import cell_path, scene_dir
 from egovid.voeval.matrices import (
     METRICS,

@@ -2,7 +2,7 @@
 
 :func:`run_grid` prepares the test videos (synthetic renders, imported real sequences, their
 degraded copies, the H.264 ladder) and then evaluates every missing cell, each stage as
-independent tasks on :mod:`egovid.engine`: in this process, on a local pool of worker processes
+independent tasks on :mod:`egovid.core.engine`: in this process, on a local pool of worker processes
 (the default), or on a Dask cluster (``--scheduler``; the run folder must then be reachable at the
 same path from every worker). Every output is written atomically by the task that makes it and
 is skipped when it exists, so an interrupted run resumes where it stopped and a task that runs
@@ -19,11 +19,11 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from egovid.engine import EngineConfig, open_client, run_tasks
-from egovid.errors import EgovidError
-from egovid.io.files import atomic_write_text
-from egovid.io.video import VideoWriter, iter_frames
-from egovid.metrics.visual_error import DEFAULT_CAP_DB
+from egovid.core.engine import EngineConfig, open_client, run_tasks
+from egovid.core.errors import EgovidError
+from egovid.core.files import atomic_write_text
+from egovid.core.metrics.visual_error import DEFAULT_CAP_DB
+from egovid.core.video import VideoWriter, iter_frames
 from egovid.voeval.cell import ANCHORS, CellJob, evaluate_cell
 from egovid.voeval.degrade import REAL_FACTORS
 from egovid.voeval.layout import LEVELS, Factor, cell_path, scene_dir, video_path

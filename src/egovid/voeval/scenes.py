@@ -38,10 +38,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from egovid.geometry import matrix_from_euler
-from egovid.io.camera import Intrinsics
-from egovid.io.trajectory import Trajectory, write_tum
-from egovid.io.video import VideoWriter
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.rotations import matrix_from_euler
+from egovid.core.trajectory import Trajectory, write_tum
+from egovid.core.video import VideoWriter
 from egovid.synth import effects
 from egovid.synth.photos import photo
 
@@ -89,7 +89,7 @@ class SceneTruth:
 
     def save(self, folder: Path) -> None:
         """Write ``NAME.gt.tum`` and ``NAME.json`` (atomically, the JSON last)."""
-        from egovid.io.files import atomic_write_text
+        from egovid.core.files import atomic_write_text
 
         write_tum(folder / f"{self.name}.gt.tum", Trajectory(self.times, self.R))
         i = self.intrinsics
@@ -110,7 +110,7 @@ class SceneTruth:
 
     @classmethod
     def load(cls, folder: Path, name: str) -> SceneTruth:
-        from egovid.io.trajectory import read_tum
+        from egovid.core.trajectory import read_tum
 
         meta = json.loads((folder / f"{name}.json").read_text())
         intr = Intrinsics(meta["width"], meta["height"], meta["fx"], meta["fy"], meta["cx"], meta["cy"])
@@ -201,7 +201,7 @@ def render_scene(
     the canonical scene (orbit from angle 0, photos in the listed order).
     """
     if name not in SCENES:
-        from egovid.errors import EgovidError
+        from egovid.core.errors import EgovidError
 
         raise EgovidError(f"unknown scene {name!r}", f"choose from {', '.join(SCENES)}")
     rng_motion, rng_pictures, rng_noise = (np.random.default_rng([seed, k]) for k in range(3))

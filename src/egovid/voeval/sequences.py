@@ -18,9 +18,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from egovid.errors import EgovidError
-from egovid.geometry import so3_exp, so3_log
-from egovid.io.camera import Intrinsics
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.errors import EgovidError
+from egovid.core.rotations import so3_exp, so3_log
 from egovid.voeval.datasets import READERS, RawSequence, check_times
 from egovid.voeval.scenes import SceneTruth, lossless_writer
 

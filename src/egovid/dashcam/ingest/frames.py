@@ -17,10 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from egovid.dashcam.align import MatchCache, OrbScorer, ScaleRefiner, small_gray
+from egovid.core.motion.features import FrameFeatures
+from egovid.dashcam.align.orb import MatchCache, OrbScorer, ScaleRefiner, small_gray
 from egovid.dashcam.extract import DriveFrames, FrameSource, read_ahead
-from egovid.dashcam.trips import iter_trip_frames
-from egovid.motion.features import FrameFeatures
+from egovid.dashcam.route.trips import iter_trip_frames
 
 READ_AHEAD = 4  # frames decoded ahead of the stages (new drive and baseline drive)
 
@@ -129,7 +129,7 @@ class RefFrames:
 
     def desc(self, j: int) -> np.ndarray:
         """SeqSLAM descriptor."""
-        from egovid.dashcam.seqslam import descriptor
+        from egovid.dashcam.align.seqslam import descriptor
 
         d = self._desc.get(j)
         if d is None:

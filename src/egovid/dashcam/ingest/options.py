@@ -6,8 +6,8 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from egovid.dashcam import vpx
-from egovid.errors import EgovidError
+from egovid.core.errors import EgovidError
+from egovid.dashcam.codec import vpx
 
 ALIGNERS = ("orb", "orb-plain", "seqslam", "gps")
 BASELINE_ALIGN = ("none", "gain", "similarity")

@@ -35,16 +35,17 @@ from collections.abc import Callable, Iterator
 import cv2
 import numpy as np
 
-from egovid.dashcam import codec, vpx
-from egovid.dashcam.align import OrbScorer, small_gray, warm_up, wide_window
+from egovid.core.errors import EgovidError
+from egovid.dashcam.align.illumination import frame_features
+from egovid.dashcam.align.orb import OrbScorer, small_gray, warm_up, wide_window
+from egovid.dashcam.codec import segment as codec
+from egovid.dashcam.codec import vpx
 from egovid.dashcam.extract import FrameSource
-from egovid.dashcam.illumination import frame_features
+from egovid.dashcam.ingest.align import StreamingAlignment
 from egovid.dashcam.ingest.frames import InputFrame, RefFrames
 from egovid.dashcam.ingest.options import IngestOptions
 from egovid.dashcam.ingest.records import DriveTrack, EncodedPiece, PiecePlan
 from egovid.dashcam.ingest.stages import choose_baseline
-from egovid.dashcam.ingest.timeline import StreamingAlignment
-from egovid.errors import EgovidError
 
 LOOKAHEAD = 24  # frames whose light chooses the baseline (one random-access period)
 LIGHT_EVERY = 4  # after the first LOOKAHEAD frames, every 4th frame's light counts

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.dashcam.gps import GpsTrack
-from egovid.io.video import VideoInfo
+from egovid.core.video import VideoInfo
+from egovid.dashcam.route.tracks import GpsTrack
 
 
 @dataclass(frozen=True)

@@ -16,17 +16,17 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from egovid.dashcam import vpx
+from egovid.core.engine import EngineConfig, run_tasks
+from egovid.core.errors import EgovidError
+from egovid.dashcam.archive.locks import ORIGIN_KEY, AreaSession, cell_keys
+from egovid.dashcam.archive.store import Archive, ArchiveSpec
+from egovid.dashcam.codec import vpx
 from egovid.dashcam.extract import SegmentSnapshot
 from egovid.dashcam.ingest.frames import decode_once
 from egovid.dashcam.ingest.options import IngestOptions
 from egovid.dashcam.ingest.piece import encode_piece
 from egovid.dashcam.ingest.records import DriveInput, DriveTrack, IngestReport
 from egovid.dashcam.ingest.stages import NEAR, commit, paths_along, probe_stage, split_stage, track_stage, track_xy
-from egovid.dashcam.locks import ORIGIN_KEY, AreaSession, cell_keys
-from egovid.dashcam.store import Archive, ArchiveSpec
-from egovid.engine import EngineConfig, run_tasks
-from egovid.errors import EgovidError
 
 Progress = Callable[[str, int, int], None]
 

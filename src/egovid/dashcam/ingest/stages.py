@@ -20,11 +20,13 @@ from typing import Protocol
 
 import numpy as np
 
-from egovid.dashcam.catalogue import Catalogue, Sequence
+from egovid.core.errors import EgovidError
+from egovid.core.video import probe
+from egovid.dashcam.align.illumination import best_match
+from egovid.dashcam.align.stops import stopped_frames
+from egovid.dashcam.archive.catalogue import Catalogue, Sequence
+from egovid.dashcam.archive.store import ORIGIN_META, Archive
 from egovid.dashcam.extract import reference_segments
-from egovid.dashcam.geometry import project_on_polyline, range_overlap
-from egovid.dashcam.gps import GpsTrack, project, read_track
-from egovid.dashcam.illumination import best_match
 from egovid.dashcam.ingest.records import (
     Candidate,
     DriveInput,
@@ -36,11 +38,9 @@ from egovid.dashcam.ingest.records import (
     SplitPlan,
     VideoProbe,
 )
-from egovid.dashcam.paths import match_path, resample, smooth_track, split_drive, split_points, split_positions
-from egovid.dashcam.stops import stopped_frames
-from egovid.dashcam.store import ORIGIN_META, Archive
-from egovid.errors import EgovidError
-from egovid.io.video import probe
+from egovid.dashcam.route.paths import match_path, resample, smooth_track, split_drive, split_points, split_positions
+from egovid.dashcam.route.plane import project_on_polyline, range_overlap
+from egovid.dashcam.route.tracks import GpsTrack, project, read_track
 
 GPS_EXTENSIONS = (".gpx", ".nmea", ".csv")
 NEAR = 60.0  # metres around the drive searched for known paths

@@ -1,0 +1,1 @@
+"""What a camera says about itself: intrinsics, ExifTool metadata and embedded telemetry."""

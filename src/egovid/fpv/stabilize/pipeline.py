@@ -1,0 +1,274 @@
+"""The stabiliser end to end: motion → planned motion → path the frame affords → rendered video →
+measured video.
+
+``stabilize()`` is what ``egovid fpv stabilize`` runs:
+
+1. the camera motion of the input (estimated, or given);
+2. the thesis' plan (ch. 9, :mod:`egovid.fpv.stabilize.optimize`) at the model's 30 fps: roll is
+   levelled by default (set to the clip's median roll, so a tilted mount stays as mounted and only
+   roll shake goes; ``keep_roll`` treats it like yaw and pitch); ``strength`` blends the original
+   and the planned motion (1 = the plan, 0 = untouched);
+3. with ``borders="crop"``, the path nearest that plan that a dynamic zoom of at most
+   ``max_zoom`` covers (:mod:`egovid.fpv.stabilize.path`);
+4. the frames re-rendered along that path, keeping what the camera wrote
+   (:mod:`egovid.fpv.stabilize.render`);
+5. unless ``measure=False``, the input and the decoded output measured alike
+   (:mod:`egovid.fpv.stabilize.measure`): VE, SVE, FPMI, 2D-VE, ITF and jitter, beside the same
+   scores of the path as planned.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.errors import EgovidError
+from egovid.core.rotations import matrix_from_euler
+from egovid.core.trajectory import Trajectory
+from egovid.core.video import probe
+from egovid.fpv.perception.model import ViewingModel, from_model_rate, to_model_rate
+from egovid.fpv.perception.score import AXES, check_angles
+from egovid.fpv.stabilize.measure import MotionScores, VideoMeasures, measure_video, motion_scores
+from egovid.fpv.stabilize.optimize import AxisPlan, OptimizeOptions, load_kernels, optimize_axis
+from egovid.fpv.stabilize.path import FittedPath, fit_path
+from egovid.fpv.stabilize.render import RenderStats, content_masks, homographies, render_stabilized
+
+
+def _retention(pure_before: float, pure_after: float) -> float:
+    """Share of first-person motion information kept: (1 - VE_pure after) / (1 - VE_pure before)."""
+    lost_before = 1.0 - pure_before
+    return (1.0 - pure_after) / lost_before if lost_before > 1e-9 else 1.0
+
+
+@dataclass
+class StabilizeResult:
+    """One stabilisation run. Angles in degrees (K, 3): ``original`` (input motion), ``plan`` (the
+    thesis' plan), ``path`` (what was rendered); ``keep`` (K,) the share of the frame kept (zoom
+    1/keep); scores of the path as ``planned``; ``before``/``after`` measured on the decoded input
+    and output (None with ``measure=False``); ``seconds`` per stage (not in :meth:`summary`,
+    which is deterministic)."""
+
+    output: str
+    times: np.ndarray
+    original: np.ndarray
+    plan: np.ndarray
+    path: np.ndarray
+    keep: np.ndarray
+    plans: dict[str, AxisPlan]
+    planned: MotionScores
+    planned_before: MotionScores
+    before: VideoMeasures | None
+    after: VideoMeasures | None
+    render: RenderStats
+    fitted: FittedPath | None
+    seconds: dict[str, float] = field(default_factory=dict)
+    params: dict = field(default_factory=dict)
+
+    @property
+    def edited(self) -> np.ndarray:
+        """The rendered path (alias kept for callers of the thesis' wording)."""
+        return self.path
+
+    def summary(self) -> dict:
+        """JSON-ready results: the same input and options give the same dict (no timings)."""
+        zoom = 1.0 / self.keep
+        out = {
+            "output": self.output,
+            "frames": len(self.times),
+            "planned": {"before": asdict(self.planned_before), "after": asdict(self.planned)},
+            "fpmi_retention_planned": _retention(self.planned_before.pure_fpm_ve, self.planned.pure_fpm_ve),
+            "zoom": {"mean": float(zoom.mean()), "max": float(zoom.max())},
+            "black_share": self.render.black_share,
+            "kept_from_input": self.render.kept,
+            "not_kept": self.render.dropped,
+            "notes": self.fitted.notes if self.fitted else [],
+            "params": self.params,
+        }
+        if self.before is not None and self.after is not None:
+            out["measured"] = {"before": self.before.to_dict(), "after": self.after.to_dict()}
+            out["fpmi_retention_measured"] = _retention(self.before.pure_fpm_ve, self.after.pure_fpm_ve)
+        return out
+
+
+@contextlib.contextmanager
+def _side_process() -> Iterator[ProcessPoolExecutor | None]:
+    """One forked worker process; None where the platform cannot fork or this process may not
+    have children (a daemonic process: Dask workers, multiprocessing pool workers)."""
+    if "fork" not in multiprocessing.get_all_start_methods() or multiprocessing.current_process().daemon:
+        yield None
+        return
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def plan_motion(
+    angles: np.ndarray,
+    fps: float,
+    intr: Intrinsics,
+    *,
+    strength: float = 1.0,
+    keep_roll: bool = False,
+    model: ViewingModel | None = None,
+    opts: OptimizeOptions | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    times: np.ndarray | None = None,
+) -> tuple[np.ndarray, dict[str, AxisPlan]]:
+    """Edited (K, 3) motion in degrees and the per-axis plans.
+
+    The plan is made at the model's 30 fps (the motion is resampled there and the edited motion
+    back to the video's frames), so the objective and the easing table mean the same at every
+    frame rate; the plans' anchors are in frames at 30 fps."""
+    if not (0.0 <= strength <= 1.0):
+        raise EgovidError(f"strength {strength} is outside [0, 1]", "use e.g. --strength 0.7")
+    model = model or ViewingModel()
+    opts = opts or OptimizeOptions()
+    a30, _ = to_model_rate(angles, fps, times)
+    axes = ["yaw", "pitch"] + (["roll"] if keep_roll else [])
+    edited30 = np.array(a30)
+    if not keep_roll:
+        edited30[:, 2] = np.median(angles[:, 2])
+    plans: dict[str, AxisPlan] = {}
+    load_kernels()  # before the fork: the side process inherits them
+    # Yaw and pitch are planned independently (each axis's windows see only its own angle), so
+    # pitch runs in a forked process while yaw runs here: the optimiser is single-threaded
+    # Python and the second core would idle. Roll waits for both (its intervals move with them).
+    with _side_process() as side:
+        pending = {}
+        if side is not None and "pitch" in axes:
+            col = AXES.index("pitch")
+            pending["pitch"] = side.submit(
+                optimize_axis, a30[:, col], "pitch", intr.hfov_deg, intr.vfov_deg, model, opts, context=edited30
+            )
+        for step, name in enumerate(axes):
+            col = AXES.index(name)
+            if name in pending:
+                plans[name] = pending[name].result()
+            else:
+                # Roll's intervals are shifted by the yaw and pitch the viewer will see (eq. 8.2-8.3).
+                plans[name] = optimize_axis(
+                    a30[:, col], name, intr.hfov_deg, intr.vfov_deg, model, opts, context=edited30
+                )
+            edited30[:, col] = plans[name].edited
+            if progress is not None:
+                progress(step + 1, len(axes))
+    edited = from_model_rate(edited30, fps, len(angles), times)
+    edited = angles + strength * (edited - angles)
+    return edited, plans
+
+
+def stabilize(
+    src: str | os.PathLike,
+    dst: str | os.PathLike,
+    *,
+    intrinsics: Intrinsics | None = None,
+    motion: Trajectory | None = None,
+    strength: float = 1.0,
+    borders: str = "crop",
+    max_zoom: float = 1.10,
+    keep_roll: bool = False,
+    method: str = "ve",
+    model: ViewingModel | None = None,
+    opts: OptimizeOptions | None = None,
+    crf: int = 18,
+    measure: bool = True,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> StabilizeResult:
+    """Stabilise ``src`` into ``dst`` keeping the intentional first-person motion.
+
+    ``motion`` reuses a previously estimated trajectory (it must have one entry per frame).
+    ``progress(stage, done, total)`` is called with stages ``motion``, ``plan``, ``render`` and
+    the measuring stages.
+    """
+    from egovid.core.motion.estimate import estimate_motion
+
+    t0 = time.perf_counter()
+    info = probe(src)
+    intr = intrinsics or Intrinsics.default(info.width, info.height)
+    model = model or ViewingModel()
+    opts = opts or OptimizeOptions(method=method)
+    if motion is None:
+        # The planner's compiled objective takes ~0.5 s to load; the motion stage leaves the
+        # interpreter free most of the time (OpenCV and compiled fits run without the GIL).
+        loader = threading.Thread(target=load_kernels, name="load-planner", daemon=True)
+        loader.start()
+        cb = (lambda d, t: progress("motion", d, t)) if progress else None
+        motion = estimate_motion(src, intr, progress=cb).trajectory
+        loader.join()  # done long before; no thread may hold a lock when the planner forks
+    t1 = time.perf_counter()
+    angles = motion.euler()
+    fps = info.fps
+    check_angles(angles, fps, model)  # too short to score: say so before writing anything
+    cb = (lambda d, t: progress("plan", d, t)) if progress else None
+    plan, plans = plan_motion(
+        angles, fps, intr, strength=strength, keep_roll=keep_roll, model=model, opts=opts, progress=cb
+    )
+    fitted = None
+    path, keep = plan, np.ones(len(plan))
+    if borders == "crop":
+        fitted = fit_path(angles, plan, intr, fps, max_zoom=max_zoom)
+        path, keep = fitted.path, fitted.keep
+    t2 = time.perf_counter()
+    R_old = matrix_from_euler(angles[:, 0], angles[:, 1], angles[:, 2])
+    R_new = matrix_from_euler(path[:, 0], path[:, 1], path[:, 2])
+    H = homographies(R_old, R_new, intr)
+    cb = (lambda d, t: progress("render", d, t)) if progress else None
+    stats = render_stabilized(
+        src, dst, H, keep=keep, borders=borders, R_new=R_new, intrinsics=intr, crf=crf, progress=cb
+    )
+    t3 = time.perf_counter()
+    scores = {"model": model, "anchor_threshold": opts.anchor_threshold}
+    planned_before = motion_scores(angles, fps, intr, **scores)
+    planned = motion_scores(path, fps, intr, **scores)
+    before = after = None
+    if measure:
+        masks = None if borders == "crop" else content_masks(H, keep, intr.width, intr.height)
+        before = measure_video(src, intr, motion=angles, **scores, progress=progress)
+        after = measure_video(dst, intr, masks=masks, **scores, progress=progress)
+    t4 = time.perf_counter()
+    return StabilizeResult(
+        output=str(dst),
+        times=motion.times,
+        original=angles,
+        plan=plan,
+        path=path,
+        keep=keep,
+        plans=plans,
+        planned=planned,
+        planned_before=planned_before,
+        before=before,
+        after=after,
+        render=stats,
+        fitted=fitted,
+        seconds={
+            "motion": t1 - t0,
+            "plan": t2 - t1,
+            "render": t3 - t2,
+            "measure": t4 - t3,
+            "total": t4 - t0,
+        },
+        params={
+            "strength": strength,
+            "borders": borders,
+            "max_zoom": max_zoom if borders == "crop" else None,
+            "keep_roll": keep_roll,
+            "method": method,
+            "focal_px": intr.focal,
+            "hfov_deg": intr.hfov_deg,
+            "anchor_threshold_deg": opts.anchor_threshold,
+            "d_over_f": model.d_over_f,
+            "bias_deg": model.bias_deg,
+            "crf": crf,
+        },
+    )

@@ -1,1 +1,0 @@
-"""Input and output at the edges: video (PyAV), camera intrinsics, trajectory files."""

@@ -26,8 +26,10 @@ from egovid.core.errors import EgovidError
 from egovid.core.video import VideoWriter
 from egovid.dashcam.archive.blobs import BlobStore
 from egovid.dashcam.archive.catalogue import Drive, Segment
+from egovid.dashcam.archive.references import check_chain
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.codec import vpx
+from egovid.dashcam.codec.streams import StreamCopier
 
 DAMAGED = "the archive or one of its reference drives is damaged"
 
@@ -322,8 +324,6 @@ def extract_video(
     output with; ``streams``: the drive's archived audio and telemetry (dashcam/streams.py), copied
     for the same stretch (``audio_codec``: re-encode the audio, e.g. ``aac``); ``crf``: an MP4 for
     sharing (H.264 at this quality) instead of a lossless one."""
-    from egovid.dashcam.codec.streams import StreamCopier
-
     out = Path(out)
     ext = out.suffix.lower()
     if ext not in (".mkv", ".mp4"):
@@ -334,8 +334,6 @@ def extract_video(
             f"frames {f0}-{f1 - 1} are not in drive {drive.name} (frames 0-{drive.frames - 1})",
             "choose a range inside the drive (see `egovid dashcam show`)",
         )
-    from egovid.dashcam.check import check_chain
-
     check_chain(source, drive.id)
     codec_name, options = ("ffv1", None) if ext == ".mkv" else ("libx264", {"qp": "0", "preset": "ultrafast"})
     if crf is not None and ext == ".mp4":

@@ -1,5 +1,6 @@
 """Getting drives back out of an archive: decoding segments (a whole drive or a stretch), the
-baselines a joint segment is decoded against, digests, and writing a lossless video.
+baselines a joint segment is decoded against, digests, and writing a lossless video
+(:func:`extract_drive`: ``egovid dashcam extract``).
 
 Everything here reads through a :class:`FrameSource` — the archive itself, or the snapshot of the
 reference drives an ingest task carries to another process — so the encoder's baselines and every
@@ -23,10 +24,12 @@ from typing import Protocol, TypeVar
 import numpy as np
 
 from egovid.core.errors import EgovidError
-from egovid.core.video import VideoWriter
+from egovid.core.video import ColourTags, VideoWriter
 from egovid.dashcam.archive.blobs import BlobStore
 from egovid.dashcam.archive.catalogue import Drive, Segment
+from egovid.dashcam.archive.fleetstore import FleetStore, live_drive
 from egovid.dashcam.archive.references import check_chain
+from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.codec import vpx
 from egovid.dashcam.codec.streams import StreamCopier
@@ -320,10 +323,11 @@ def extract_video(
 
     ``frames``: (first, end) frame numbers of the drive to write (end exclusive; default all).
     Decoding starts at the random-access run holding ``first``, in this drive and in the
-    drives it refers to. ``colour``: the source's colour tags (io.video.ColourTags) to tag the
-    output with; ``streams``: the drive's archived audio and telemetry (dashcam/streams.py), copied
-    for the same stretch (``audio_codec``: re-encode the audio, e.g. ``aac``); ``crf``: an MP4 for
-    sharing (H.264 at this quality) instead of a lossless one."""
+    drives it refers to. ``colour``: the source's colour tags (:class:`~egovid.core.video.ColourTags`)
+    to tag the output with; ``streams``: the drive's archived audio and telemetry
+    (:mod:`egovid.dashcam.codec.streams`), copied for the same stretch (``audio_codec``: re-encode
+    the audio, e.g. ``aac``); ``crf``: an MP4 for sharing (H.264 at this quality) instead of a
+    lossless one. ``progress(done, total)``: frames written."""
     out = Path(out)
     ext = out.suffix.lower()
     if ext not in (".mkv", ".mp4"):
@@ -365,3 +369,49 @@ def extract_video(
             copier.write()
             copier.close()
     return out
+
+
+def archived_extras(archive: Archive, drive: Drive) -> dict:
+    """What the fleet tables add to a drive's frames: the source's colour tags and the archived
+    audio and telemetry (keyword arguments ``colour`` and ``streams`` of :func:`extract_video`;
+    empty for an archive without fleet tables, which are not created here)."""
+    cat = archive.catalogue
+    if cat.get_meta("fleet_schema") is None:
+        return {}
+    m = FleetStore(cat).meta(drive.id)
+    return {
+        "colour": ColourTags(**m.colour) if m.colour else None,
+        "streams": archive.blobs.get(m.streams_blob) if m.streams_blob else None,
+    }
+
+
+def drive_frame_range(drive: Drive, start: float | None, duration: float | None) -> tuple[int, int]:
+    """Frames [f0, f1) of ``drive`` from ``start`` seconds into it (default 0) for ``duration``
+    seconds (default to the end; at least one frame); :class:`EgovidError` if it starts past the end."""
+    f0 = round((start or 0.0) * drive.fps)
+    f1 = drive.frames if duration is None else min(drive.frames, f0 + max(1, round(duration * drive.fps)))
+    if f0 >= drive.frames:
+        raise EgovidError(
+            f"--start {start} s is past the end of drive {drive.name} ({drive.frames / drive.fps:.1f} s)",
+            "choose an earlier start",
+        )
+    return f0, f1
+
+
+def extract_drive(
+    archive: Archive,
+    key: str,
+    out: str | os.PathLike,
+    *,
+    start: float | None = None,
+    duration: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[Drive, int, int]:
+    """``egovid dashcam extract``: write the live drive ``key`` (name or id) back as a video, from
+    ``start`` seconds for ``duration`` seconds (:func:`drive_frame_range`), with its colour tags,
+    audio and telemetry (:func:`archived_extras`), checked against the encoder's reconstruction
+    (:func:`extract_video`). Returns the drive and the frames [f0, f1) written."""
+    drive = live_drive(archive.catalogue, key, archive.root)
+    f0, f1 = drive_frame_range(drive, start, duration)
+    extract_video(archive, drive, out, progress=progress, frames=(f0, f1), **archived_extras(archive, drive))
+    return drive, f0, f1

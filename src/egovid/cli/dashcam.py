@@ -339,15 +339,14 @@ def extract(
     random-access point before it (every 24 frames by default), in this drive and in the older
     drives it was coded against.
     """
-    from egovid.dashcam.extract import extract_drive
+    from egovid.dashcam.extract import extract_drive, plan_extract
 
     ar = _open(archive)
     check_output(out, exts=".mkv .mp4")
+    job = plan_extract(ar, drive, start, duration)  # checked before the progress display starts
     with staged_progress() as cb:
-        d, f0, f1 = extract_drive(
-            ar, drive, out, start=start, duration=duration, progress=lambda k, n: cb("extract", k, n)
-        )
-    console.print(f"{d.name}: frames {f0}-{f1 - 1} of {d.frames} → {out}")
+        extract_drive(ar, job, out, lambda k, n: cb("extract", k, n))
+    console.print(f"{job.drive.name}: frames {job.frame_start}-{job.frame_end - 1} of {job.drive.frames} → {out}")
 
 
 @app.command("gc")
@@ -548,7 +547,7 @@ def clip_cmd(
     digests like extract; --lossless keeps them bit for bit.
     """
     from egovid.cli import validate
-    from egovid.dashcam.clip import cut_clip
+    from egovid.dashcam.clip import plan_clip, write_clip
 
     validate.outputs([], (out, ".mp4", "clip"), (out.with_suffix(".gpx"), ".gpx", "GPX beside the clip"))
     validate.number(radius, "--radius", lo=0, lo_open=True, hi=100_000, unit="m")
@@ -557,11 +556,9 @@ def clip_cmd(
     moment = _utc(at, "--at") if at else None
     place = _floats(near, 2, "--near", "48.1372,11.5756") if near else None
     ar = _open(archive)
+    plan = plan_clip(ar, at=moment, near=place, radius=radius, drive=drive, before=before, after=after)
     with staged_progress() as cb:
-        rep = cut_clip(
-            ar, out, at=moment, near=place, radius=radius, drive=drive, before=before, after=after,
-            crf=crf, lossless=lossless, progress=lambda k, n: cb("clip", k, n),
-        )  # fmt: skip
+        rep = write_clip(ar, plan, out, crf=crf, lossless=lossless, progress=lambda k, n: cb("clip", k, n))
     extra = f", with {' and '.join(rep['streams'])}" if rep["streams"] else ""
     gpx = f"; {rep['gpx']} ({rep['gps_fixes']} fixes)" if rep["gpx"] else "; no GPS fixes in the stretch"
     console.print(

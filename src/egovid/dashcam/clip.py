@@ -9,7 +9,6 @@ does) into an H.264 MP4 that phones and browsers play (yuv420p, ``+faststart``; 
 default, or lossless with ``lossless=True``: then every frame is bit-exact with the archive), tagged
 with the source's colour tags, with the archived audio (as AAC) and telemetry (GoPro GPMF …) of
 the same stretch, and writes ``NAME.gpx`` beside it with the GPS fixes of the stretch.
-:func:`cut_clip` (``egovid dashcam clip``) does both.
 """
 
 from __future__ import annotations
@@ -186,22 +185,3 @@ def _write_stretch_gpx(path: Path, fleet: FleetStore, plan: ClipPlan) -> int:
         return 0
     write_gpx(path, f"{d.name} {iso(plan.start_utc)}", t[sel], lat[sel], lon[sel])
     return int(sel.sum())
-
-
-def cut_clip(
-    archive: Archive,
-    out: str | os.PathLike,
-    *,
-    at: float | None = None,
-    near: tuple[float, float] | None = None,
-    radius: float = 50.0,
-    drive: str | None = None,
-    before: float = 10.0,
-    after: float = 10.0,
-    crf: int = 18,
-    lossless: bool = False,
-    progress: Callable[[int, int], None] | None = None,
-) -> dict:
-    """``egovid dashcam clip``: find the clip (:func:`plan_clip`) and write it (:func:`write_clip`)."""
-    plan = plan_clip(archive, at=at, near=near, radius=radius, drive=drive, before=before, after=after)
-    return write_clip(archive, plan, out, crf=crf, lossless=lossless, progress=progress)

@@ -1,6 +1,6 @@
 """Getting drives back out of an archive: decoding segments (a whole drive or a stretch), the
 baselines a joint segment is decoded against, digests, and writing a lossless video
-(:func:`extract_drive`: ``egovid dashcam extract``).
+(``egovid dashcam extract``: :func:`plan_extract`, then :func:`extract_drive`).
 
 Everything here reads through a :class:`FrameSource` — the archive itself, or the snapshot of the
 reference drives an ingest task carries to another process — so the encoder's baselines and every
@@ -18,6 +18,7 @@ import queue
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, TypeVar
 
@@ -385,9 +386,20 @@ def archived_extras(archive: Archive, drive: Drive) -> dict:
     }
 
 
-def drive_frame_range(drive: Drive, start: float | None, duration: float | None) -> tuple[int, int]:
-    """Frames [f0, f1) of ``drive`` from ``start`` seconds into it (default 0) for ``duration``
-    seconds (default to the end; at least one frame); :class:`EgovidError` if it starts past the end."""
+@dataclass(frozen=True)
+class ExtractJob:
+    """What ``extract`` writes: a live drive and its frames [frame_start, frame_end)."""
+
+    drive: Drive
+    frame_start: int
+    frame_end: int
+
+
+def plan_extract(archive: Archive, key: str, start: float | None = None, duration: float | None = None) -> ExtractJob:
+    """The live drive ``key`` (name or id) and its frames from ``start`` seconds into it (default 0)
+    for ``duration`` seconds (default to the end; at least one frame), checked before any work:
+    :class:`EgovidError` for an unknown drive or a start past its end."""
+    drive = live_drive(archive.catalogue, key, archive.root)
     f0 = round((start or 0.0) * drive.fps)
     f1 = drive.frames if duration is None else min(drive.frames, f0 + max(1, round(duration * drive.fps)))
     if f0 >= drive.frames:
@@ -395,23 +407,14 @@ def drive_frame_range(drive: Drive, start: float | None, duration: float | None)
             f"--start {start} s is past the end of drive {drive.name} ({drive.frames / drive.fps:.1f} s)",
             "choose an earlier start",
         )
-    return f0, f1
+    return ExtractJob(drive, f0, f1)
 
 
 def extract_drive(
-    archive: Archive,
-    key: str,
-    out: str | os.PathLike,
-    *,
-    start: float | None = None,
-    duration: float | None = None,
-    progress: Callable[[int, int], None] | None = None,
-) -> tuple[Drive, int, int]:
-    """``egovid dashcam extract``: write the live drive ``key`` (name or id) back as a video, from
-    ``start`` seconds for ``duration`` seconds (:func:`drive_frame_range`), with its colour tags,
-    audio and telemetry (:func:`archived_extras`), checked against the encoder's reconstruction
-    (:func:`extract_video`). Returns the drive and the frames [f0, f1) written."""
-    drive = live_drive(archive.catalogue, key, archive.root)
-    f0, f1 = drive_frame_range(drive, start, duration)
-    extract_video(archive, drive, out, progress=progress, frames=(f0, f1), **archived_extras(archive, drive))
-    return drive, f0, f1
+    archive: Archive, job: ExtractJob, out: str | os.PathLike, progress: Callable[[int, int], None] | None = None
+) -> Path:
+    """``egovid dashcam extract``: write the frames of ``job`` (:func:`plan_extract`) as a video with
+    the drive's colour tags, audio and telemetry (:func:`archived_extras`), checked against the
+    encoder's reconstruction (:func:`extract_video`). ``progress(done, total)``: frames written."""
+    frames = (job.frame_start, job.frame_end)
+    return extract_video(archive, job.drive, out, progress, frames, **archived_extras(archive, job.drive))

@@ -466,15 +466,13 @@ def _fleet(archive: Path):
 
 def _utc(text: str, option: str) -> float:
     """``--at``/``--from``/``--to``: ISO 8601 (``2024-05-04T08:00:00Z``, ``+02:00``; no zone = UTC)."""
-    import datetime as dt
-
     from egovid.core.errors import EgovidError
+    from egovid.core.times import iso_to_utc
 
     try:
-        t = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+        return iso_to_utc(text)
     except ValueError:
         raise EgovidError(f"{option} {text!r} is not an ISO 8601 time", "write e.g. 2024-05-04T08:00:00Z") from None
-    return (t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp()
 
 
 def _floats(text: str, n: int, option: str, example: str) -> tuple[float, ...]:

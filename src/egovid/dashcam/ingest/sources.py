@@ -27,9 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.core.times import creation_time_utc
 from egovid.core.video import VideoInfo, probe
 from egovid.dashcam.ingest.stages import frame_times, gps_beside
-from egovid.dashcam.route.clock import VideoClock, name_time, parse_creation_time, resolve_clock
+from egovid.dashcam.route.clock import VideoClock, name_time, resolve_clock
 from egovid.dashcam.route.embedded import EmbeddedGps, read_embedded_gps
 from egovid.dashcam.route.tracks import GpsTrack, read_track
 from egovid.dashcam.route.trips import FileInfo, TripPlan, expand_inputs, file_channel, file_kind, plan_trips
@@ -97,7 +98,7 @@ def _folder_log(path: Path, info: VideoInfo, times: np.ndarray, clock: ClockOpti
     from egovid.dashcam.ingest.stages import GPS_EXTENSIONS
 
     exts = {e.lower() for e in GPS_EXTENSIONS}
-    created, named = parse_creation_time(info.creation_time), name_time(path.name)
+    created, named = creation_time_utc(info.creation_time), name_time(path.name)
     if created is None and named is None:
         return None  # nothing would place the video inside another file's log
     cands = sorted(f for f in path.parent.iterdir() if f.is_file() and f.suffix.lower() in exts)
@@ -156,7 +157,7 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
             start=clock.start,
             embedded=embedded,
             track=log_track,
-            creation_time=parse_creation_time(info.creation_time),
+            creation_time=creation_time_utc(info.creation_time),
             file_time=name_time(path.name),
             tz_offset_h=clock.tz_offset_h,
             gps_offset=clock.gps_offset,

@@ -21,6 +21,7 @@ from typing import Protocol
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.core.times import creation_time_utc
 from egovid.core.video import probe
 from egovid.dashcam.align.illumination import best_match
 from egovid.dashcam.align.stops import stopped_frames
@@ -64,18 +65,6 @@ def frame_times(video: str | os.PathLike) -> np.ndarray:
     return t - t[0]
 
 
-def _parse_creation_time(text: str | None) -> float | None:
-    if not text:
-        return None
-    try:
-        t = dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
-    except ValueError:
-        return None
-    if t.tzinfo is None:
-        t = t.replace(tzinfo=dt.UTC)
-    return t.timestamp()
-
-
 def probe_stage(inp: DriveInput) -> VideoProbe:
     """Describe the video: size, frame rate, each frame's time, its UTC start (``--start``, else
     the container's ``creation_time``, else unknown)."""
@@ -85,7 +74,7 @@ def probe_stage(inp: DriveInput) -> VideoProbe:
             f"{inp.video} is {info.width}x{info.height}; odd sizes are not supported",
             "crop the video to even dimensions",
         )
-    start = inp.start_utc if inp.start_utc is not None else _parse_creation_time(info.creation_time)
+    start = inp.start_utc if inp.start_utc is not None else creation_time_utc(info.creation_time)
     if inp.parts:  # a trip: the files' frames on one clock, the gaps between the files kept
         starts = inp.part_starts
         times = np.concatenate([frame_times(f) + (s - starts[0]) for f, s in zip(inp.parts, starts, strict=True)])

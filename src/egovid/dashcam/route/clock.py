@@ -29,7 +29,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from egovid.core.errors import EgovidError
-from egovid.dashcam.route.embedded import EmbeddedGps, plausible_utc
+from egovid.core.times import plausible_utc
+from egovid.dashcam.route.embedded import EmbeddedGps
 from egovid.dashcam.route.tracks import GpsTrack
 
 #: Camera clock and GPS agree when within this many seconds (creation_time has 1 s resolution).
@@ -65,23 +66,6 @@ class VideoClock:
 def iso(t: float) -> str:
     """UTC seconds → ``2024-01-31T23:59:59.500Z``."""
     return dt.datetime.fromtimestamp(t, dt.UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
-
-
-def parse_creation_time(text: str | None) -> float | None:
-    """A container's ``creation_time`` (ISO 8601; no zone = UTC) → seconds, None if missing,
-    unreadable or implausible (an unset clock's 1904/1970/2000-01-01)."""
-    if not text:
-        return None
-    try:
-        t = dt.datetime.fromisoformat(str(text).strip().replace("Z", "+00:00"))
-    except ValueError:
-        return None
-    if t.tzinfo is None:
-        t = t.replace(tzinfo=dt.UTC)
-    s = t.timestamp()
-    if not plausible_utc(s) or (t.year == 2000 and t.month == 1 and t.day == 1):
-        return None
-    return s
 
 
 def name_time(path: str) -> float | None:

@@ -32,10 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
+from egovid.core.times import plausible_utc
 from egovid.dashcam.route.tracks import GpsTrack, _finish, parse_nmea, rmc_has_fix
 
-#: GPS times outside these years are not trusted (unset clock, GPS week roll-over).
-PLAUSIBLE_YEARS = (2000, 2100)
 MAX_HDOP = 5.0
 _KEY = re.compile(r"^(?:Doc(\d+):)?(?:Copy(\d+):)?([A-Za-z0-9]+)$")
 _GPS_TIME = re.compile(r"^(\d{4})[:\-](\d\d)[:\-](\d\d)[ T](\d\d):(\d\d):(\d\d(?:\.\d+)?)\s*(Z|[+\-]\d\d:?\d\d)?$")
@@ -88,14 +87,6 @@ def parse_gps_time(text: str) -> float | None:
         hh, mm = int(zone[1:3]), int(zone[-2:])
         t -= sign * (hh * 3600 + mm * 60)
     return t if plausible_utc(t) else None
-
-
-def plausible_utc(t: float | None) -> bool:
-    """A UTC time (seconds) that a camera or GPS clock could really show (years 2000-2100)."""
-    if t is None or not math.isfinite(t):
-        return False
-    year = dt.datetime.fromtimestamp(t, dt.UTC).year if -1e10 < t < 1e11 else 0
-    return PLAUSIBLE_YEARS[0] <= year < PLAUSIBLE_YEARS[1]
 
 
 def _num(v) -> float:

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.core.times import iso_to_utc, utc_seconds
 
 EARTH_R = 6371008.8
 _FIX = "give a GPX file, an NMEA 0183 log (.nmea/.txt) or a CSV with time,lat,lon[,speed,bearing]"
@@ -128,12 +129,6 @@ def _finish(t, lat, lon, speed, bearing, source, dropped) -> GpsTrack:
     return GpsTrack(t, lat, lon, speed, bearing, source, dropped)
 
 
-def _utc(d: dt.datetime) -> float:
-    if d.tzinfo is None:
-        d = d.replace(tzinfo=dt.UTC)
-    return d.timestamp()
-
-
 def read_gpx(path: Path) -> GpsTrack:
     import gpxpy
 
@@ -149,7 +144,7 @@ def read_gpx(path: Path) -> GpsTrack:
                 if p.time is None:
                     dropped["no time"] += 1
                     continue
-                t.append(_utc(p.time))
+                t.append(utc_seconds(p.time))
                 lat.append(p.latitude)
                 lon.append(p.longitude)
                 sp.append(p.speed if p.speed is not None else np.nan)
@@ -174,7 +169,7 @@ def read_nmea(path: Path) -> GpsTrack:
                 dropped["void or estimated"] += 1
                 continue
             day = msg.datestamp
-            t = _utc(dt.datetime.combine(msg.datestamp, msg.timestamp))
+            t = utc_seconds(dt.datetime.combine(msg.datestamp, msg.timestamp))
             spd = float(msg.spd_over_grnd) * 0.514444 if msg.spd_over_grnd not in (None, "") else np.nan
             brg = float(msg.true_course) if msg.true_course not in (None, "") else np.nan
             fixes[t] = [msg.latitude, msg.longitude, spd, brg]
@@ -185,7 +180,7 @@ def read_nmea(path: Path) -> GpsTrack:
             pending_gga.append((msg.timestamp, msg.latitude, msg.longitude))
     if day is not None:
         for ts, la, lo in pending_gga:
-            t = _utc(dt.datetime.combine(day, ts))
+            t = utc_seconds(dt.datetime.combine(day, ts))
             fixes.setdefault(t, [la, lo, np.nan, np.nan])
     if not fixes:
         raise EgovidError(f"{path} contains no valid NMEA RMC/GGA fixes", _FIX)
@@ -201,7 +196,7 @@ def _parse_time(text: str) -> float:
     except ValueError:
         pass
     try:
-        return _utc(dt.datetime.fromisoformat(s.replace("Z", "+00:00")))
+        return iso_to_utc(s)
     except ValueError:
         raise EgovidError(f"GPS time {s!r} is neither ISO 8601 nor epoch seconds", _FIX) from None
 

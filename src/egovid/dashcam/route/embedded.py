@@ -30,13 +30,16 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import av
 import numpy as np
 
+from egovid.core.camera.exif import read_tags
 from egovid.core.times import plausible_utc
-from egovid.dashcam.route.tracks import GpsTrack, _finish, parse_nmea, rmc_has_fix
+from egovid.dashcam.route.tracks import GpsTrack, _finish, as_float, nmea_fixes
 
 MAX_HDOP = 5.0
 _KEY = re.compile(r"^(?:Doc(\d+):)?(?:Copy(\d+):)?([A-Za-z0-9]+)$")
+_NMEA_LINE = re.compile(r"\$[A-Z]{2}[A-Z]{3},[^\r\n$]*")
 _GPS_TIME = re.compile(r"^(\d{4})[:\-](\d\d)[:\-](\d\d)[ T](\d\d):(\d\d):(\d\d(?:\.\d+)?)\s*(Z|[+\-]\d\d:?\d\d)?$")
 
 
@@ -89,17 +92,10 @@ def parse_gps_time(text: str) -> float | None:
     return t if plausible_utc(t) else None
 
 
-def _num(v) -> float:
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return math.nan
-
-
 def _speed_ms(speed, ref) -> float:
     """ExifTool's GPSSpeed in m/s given GPSSpeedRef (K km/h, M mph, N knots); NaN if the unit is unknown."""
     factor = {"K": 1 / 3.6, "M": 0.44704, "N": 0.514444}.get(str(ref).strip().upper()[:1] if ref else "")
-    v = _num(speed)
+    v = as_float(speed)
     return v * factor if factor is not None and math.isfinite(v) else math.nan
 
 
@@ -133,7 +129,7 @@ def fixes_from_exiftool(tags: dict, source: str = "") -> EmbeddedGps | None:
         if not fixes:
             continue
         n = len(fixes)
-        t0, dur = _num(meta.get("SampleTime")), _num(meta.get("SampleDuration"))
+        t0, dur = as_float(meta.get("SampleTime")), as_float(meta.get("SampleDuration"))
         times = [_fix_time(s) for s in fixes]
         given = [t for t in times if t is not None]
         if len(given) == 1 and n > 1 and math.isfinite(dur):  # one time per payload (GoPro GPSU)
@@ -142,16 +138,16 @@ def fixes_from_exiftool(tags: dict, source: str = "") -> EmbeddedGps | None:
             order = np.argsort(given, kind="stable")  # trust the fixes' own times over tag order
             fixes, times = [fixes[i] for i in order], [given[i] for i in order]
         for k, (s, utc) in enumerate(zip(fixes, times, strict=True)):
-            lat, lon = _num(s.get("GPSLatitude")), _num(s.get("GPSLongitude"))
+            lat, lon = as_float(s.get("GPSLatitude")), as_float(s.get("GPSLongitude"))
             status = str(s.get("GPSStatus", "A")).strip().upper()[:1]
-            mode = _num(s.get("GPSMeasureMode"))
+            mode = as_float(s.get("GPSMeasureMode"))
             if not (math.isfinite(lat) and math.isfinite(lon)) or (abs(lat) < 1e-6 and abs(lon) < 1e-6):
                 dropped["no fix"] += 1
                 continue
             if status == "V" or (math.isfinite(mode) and mode < 2):
                 dropped["no fix"] += 1
                 continue
-            dop = _num(s.get("GPSHPositioningError", s.get("GPSDOP")))
+            dop = as_float(s.get("GPSHPositioningError", s.get("GPSDOP")))
             if math.isfinite(dop) and dop > MAX_HDOP:
                 dropped["imprecise"] += 1
                 continue
@@ -163,7 +159,7 @@ def fixes_from_exiftool(tags: dict, source: str = "") -> EmbeddedGps | None:
                 if math.isfinite(t0) and math.isfinite(dur)
                 else (t0 if math.isfinite(t0) else math.nan)
             )
-            bearing = _num(s.get("GPSTrack")) if str(s.get("GPSTrackRef", "T")).upper()[:1] == "T" else math.nan
+            bearing = as_float(s.get("GPSTrack")) if str(s.get("GPSTrackRef", "T")).upper()[:1] == "T" else math.nan
             rows.append((utc, vt, lat, lon, _speed_ms(s.get("GPSSpeed"), s.get("GPSSpeedRef")), bearing))
     return _embedded(rows, f"ExifTool ({source})" if source else "ExifTool", {k: v for k, v in dropped.items() if v})
 
@@ -182,38 +178,12 @@ def _fix_time(sample: dict) -> float | None:
 
 def fixes_from_nmea_samples(samples: Iterable[tuple[float, str]], source: str = "") -> EmbeddedGps | None:
     """Fixes from NMEA 0183 text samples: (video time in seconds, text of the sample) pairs, as a
-    text track holds them. RMC sentences give date, time, position, speed and course (status A
-    only, not dead-reckoned); GGA sentences (fix quality 1-5) add positions at RMC's date. Sentences
-    with a bad checksum are dropped and counted. A fix's video time is its sample's."""
+    text track holds them, merged as a log file's are (:func:`~egovid.dashcam.route.tracks.nmea_fixes`:
+    RMC with a fix, GGA positions at RMC's date; bad checksums dropped and counted). A fix's video
+    time is its sample's."""
     dropped = {"checksum": 0, "no fix": 0, "unparsable": 0}
-    rmc: dict[float, tuple] = {}
-    gga: list[tuple] = []
-    day = None
-    for vt, text in samples:
-        for line in re.findall(r"\$[A-Z]{2}[A-Z]{3},[^\r\n$]*", text):
-            msg = parse_nmea(line, dropped)
-            if msg is None:
-                continue
-            kind = msg.sentence_type
-            if kind == "RMC":
-                if not rmc_has_fix(msg):
-                    dropped["no fix"] += 1
-                    continue
-                day = msg.datestamp
-                utc = dt.datetime.combine(msg.datestamp, msg.timestamp).replace(tzinfo=dt.UTC).timestamp()
-                spd = _num(msg.spd_over_grnd) * 0.514444
-                rmc[utc] = (utc, vt, msg.latitude, msg.longitude, spd, _num(msg.true_course))
-            elif kind == "GGA":
-                if not msg.timestamp or str(msg.gps_qual) in ("0", "6", ""):
-                    dropped["no fix"] += 1
-                    continue
-                gga.append((msg.timestamp, vt, msg.latitude, msg.longitude))
-    rows = list(rmc.values())
-    if day is not None:
-        for ts, vt, lat, lon in gga:
-            utc = dt.datetime.combine(day, ts).replace(tzinfo=dt.UTC).timestamp()
-            if utc not in rmc:
-                rows.append((utc, vt, lat, lon, math.nan, math.nan))
+    lines = ((vt, line) for vt, text in samples for line in _NMEA_LINE.findall(text))
+    rows = nmea_fixes(lines, dropped, "no fix")
     name = f"NMEA text track ({source})" if source else "NMEA text track"
     return _embedded(rows, name, {k: v for k, v in dropped.items() if v})
 
@@ -235,8 +205,6 @@ def _embedded(rows: list[tuple], reader: str, dropped: dict[str, int]) -> Embedd
 def text_track_samples(video: str | os.PathLike) -> list[tuple[float, str]]:
     """(presentation time in seconds from the first video frame, text) of every sample of the
     file's subtitle/text and data tracks that holds NMEA sentences (``$GP…``/``$GN…``)."""
-    import av
-
     out: list[tuple[float, str]] = []
     with av.open(str(video)) as c:
         if not c.streams.video:
@@ -266,6 +234,4 @@ def read_embedded_gps(video: str | os.PathLike) -> EmbeddedGps | None:
         found = fixes_from_nmea_samples(samples, name)
         if found is not None:
             return found
-    from egovid.core.camera.exif import read_tags
-
     return fixes_from_exiftool(read_tags(video, embedded=True, duplicates=True), name)

@@ -24,6 +24,7 @@ from egovid.dashcam.archive.catalogue import Catalogue
 from egovid.dashcam.archive.fleetstore import DriveMeta, DrivePart, FleetStore
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec.streams import archive_streams
+from egovid.dashcam.ingest.records import DriveInput, VideoProbe
 from egovid.dashcam.ingest.sources import FileSource, IngestPlan
 from egovid.dashcam.route.tracks import GpsTrack, _finish
 from egovid.dashcam.route.trips import Trip
@@ -144,22 +145,33 @@ def prepare(
     return out
 
 
-def drive_input(p: PreparedDrive):
-    """The staged ingest's input for a prepared drive."""
-    from egovid.dashcam.ingest.records import DriveInput
-
+def drive_input(p: PreparedDrive) -> DriveInput:
+    """The staged ingest's input for a prepared drive, carrying the probe its files' examination
+    made (:func:`drive_probe`), so no file is opened again before it is decoded."""
+    many = len(p.sources) > 1
     return DriveInput(
         video=p.sources[0].path,
         gps=None,
         name=p.name,
         start_utc=p.start_utc,
         token=uuid.uuid4().hex,
-        parts=tuple(s.path for s in p.sources) if len(p.sources) > 1 else (),
-        part_starts=tuple(float(x.start_utc) for x in p.trip.parts) if len(p.sources) > 1 else (),
+        parts=tuple(s.path for s in p.sources) if many else (),
+        part_starts=tuple(float(x.start_utc) for x in p.trip.parts) if many else (),
         track=p.track,
         gps_label=p.sources[0].gps_source,
         extra=p.record,
+        probe=drive_probe(p),
     )
+
+
+def drive_probe(p: PreparedDrive) -> VideoProbe:
+    """Stage *probe* of a prepared drive from what :func:`~egovid.dashcam.ingest.sources.examine`
+    found in its files (each demuxed once): the first file's description, the frame times of
+    every file on the trip's clock (seconds from the first frame, the gaps between files kept)
+    and the trip's UTC start."""
+    starts = [float(x.start_utc) for x in p.trip.parts]
+    times = np.concatenate([s.times + (t - starts[0]) for s, t in zip(p.sources, starts, strict=True)])
+    return VideoProbe(p.sources[0].path, p.sources[0].info, times, p.start_utc)
 
 
 def _colour(info) -> dict:

@@ -28,11 +28,11 @@ import numpy as np
 
 from egovid.core.errors import EgovidError
 from egovid.core.times import creation_time_utc
-from egovid.core.video import VideoInfo, probe
-from egovid.dashcam.ingest.stages import frame_times, gps_beside
+from egovid.core.video import VideoInfo, frame_times, probe
+from egovid.dashcam.ingest.stages import check_frame_size
 from egovid.dashcam.route.clock import VideoClock, name_time, resolve_clock
 from egovid.dashcam.route.embedded import EmbeddedGps, read_embedded_gps
-from egovid.dashcam.route.tracks import GpsTrack, read_track
+from egovid.dashcam.route.tracks import GPS_EXTENSIONS, GpsTrack, gps_beside, read_track
 from egovid.dashcam.route.trips import FileInfo, TripPlan, expand_inputs, file_channel, file_kind, plan_trips
 
 
@@ -95,8 +95,6 @@ def _folder_log(path: Path, info: VideoInfo, times: np.ndarray, clock: ClockOpti
     and some cameras write one log per drive, named after its first file, so the later loop files of
     the drive have none beside them. A log counts only where the video's own clock (creation_time,
     file name, ``--tz-offset``) puts the video inside it (:func:`resolve_clock`'s coverage check)."""
-    from egovid.dashcam.ingest.stages import GPS_EXTENSIONS
-
     exts = {e.lower() for e in GPS_EXTENSIONS}
     created, named = creation_time_utc(info.creation_time), name_time(path.name)
     if created is None and named is None:
@@ -124,11 +122,7 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
     path = Path(video)
     info = probe(path)
     times = frame_times(path)
-    if info.width % 2 or info.height % 2:
-        raise EgovidError(
-            f"{path.name} is {info.width}x{info.height}; odd sizes are not supported",
-            "crop the video to even dimensions",
-        )
+    check_frame_size(path, info)
     embedded = read_embedded_gps(path)
     source = "--gps"
     track = log

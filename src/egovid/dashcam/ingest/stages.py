@@ -22,7 +22,7 @@ import numpy as np
 
 from egovid.core.errors import EgovidError
 from egovid.core.times import creation_time_utc
-from egovid.core.video import probe
+from egovid.core.video import VideoInfo, frame_times, probe
 from egovid.dashcam.align.illumination import best_match
 from egovid.dashcam.align.stops import stopped_frames
 from egovid.dashcam.archive.catalogue import Catalogue, Sequence
@@ -41,9 +41,8 @@ from egovid.dashcam.ingest.records import (
 )
 from egovid.dashcam.route.paths import match_path, resample, smooth_track, split_drive, split_points, split_positions
 from egovid.dashcam.route.plane import project_on_polyline, range_overlap
-from egovid.dashcam.route.tracks import GpsTrack, project, read_track
+from egovid.dashcam.route.tracks import GpsTrack, gps_beside, project, read_track
 
-GPS_EXTENSIONS = (".gpx", ".nmea", ".csv")
 NEAR = 60.0  # metres around the drive searched for known paths
 _CHUNK = 16  # fixes per spatial query
 
@@ -51,29 +50,15 @@ _CHUNK = 16  # fixes per spatial query
 # -- probe -------------------------------------------------------------------------------------
 
 
-def frame_times(video: str | os.PathLike) -> np.ndarray:
-    """Presentation times (seconds from the first frame) of every frame, from the demuxer only."""
-    import av
-
-    with av.open(str(video)) as c:
-        s = c.streams.video[0]
-        pts = [p.pts for p in c.demux(s) if p.pts is not None and p.size]
-        tb = float(s.time_base)
-    if not pts:
-        raise EgovidError(f"video {video} has no frames", "give a dashcam video with frames")
-    t = np.sort(np.array(pts, dtype=np.float64)) * tb
-    return t - t[0]
-
-
 def probe_stage(inp: DriveInput) -> VideoProbe:
-    """Describe the video: size, frame rate, each frame's time, its UTC start (``--start``, else
-    the container's ``creation_time``, else unknown)."""
+    """Describe the video: size, frame rate, each frame's time (core.video.frame_times: demuxed,
+    not decoded), its UTC start (``start_utc``, else the container's plausible ``creation_time``,
+    else unknown). A drive whose files were examined already carries this (``inp.probe``, made by
+    :func:`~egovid.dashcam.ingest.fleet.drive_input`): then no file is opened again."""
+    if inp.probe is not None:
+        return inp.probe
     info = probe(inp.video)
-    if info.width % 2 or info.height % 2:
-        raise EgovidError(
-            f"{inp.video} is {info.width}x{info.height}; odd sizes are not supported",
-            "crop the video to even dimensions",
-        )
+    check_frame_size(inp.video, info)
     start = inp.start_utc if inp.start_utc is not None else creation_time_utc(info.creation_time)
     if inp.parts:  # a trip: the files' frames on one clock, the gaps between the files kept
         starts = inp.part_starts
@@ -83,19 +68,16 @@ def probe_stage(inp: DriveInput) -> VideoProbe:
     return VideoProbe(Path(inp.video), info, times, start)
 
 
+def check_frame_size(video: str | os.PathLike, info: VideoInfo) -> None:
+    """Refuse a video of odd width or height (the codec's 4:2:0 pictures need even sizes)."""
+    if info.width % 2 or info.height % 2:
+        raise EgovidError(
+            f"{Path(video).name} is {info.width}x{info.height}; odd sizes are not supported",
+            "crop the video to even dimensions",
+        )
+
+
 # -- track -------------------------------------------------------------------------------------
-
-
-def gps_beside(video: Path) -> Path:
-    """The GPS file beside a video: same name, extension .gpx, .nmea or .csv (either case)."""
-    for ext in GPS_EXTENSIONS:
-        for cand in (video.with_suffix(ext), video.with_suffix(ext.upper())):
-            if cand.exists():
-                return cand
-    raise EgovidError(
-        f"no GPS track for {video.name}: no {video.stem}.gpx, .nmea or .csv beside it",
-        "give the drive's GPS log with --gps FILE",
-    )
 
 
 def track_stage(inp: DriveInput, vp: VideoProbe) -> DriveTrack:

@@ -29,6 +29,7 @@ from egovid.core.times import iso_to_utc, utc_seconds
 
 EARTH_R = 6371008.8
 KNOT = 0.514444  # m/s
+GPS_EXTENSIONS = (".gpx", ".nmea", ".csv")  # of a GPS log beside its video
 _FIX = "give a GPX file, an NMEA 0183 log (.nmea/.txt) or a CSV with time,lat,lon[,speed,bearing]"
 
 
@@ -255,6 +256,18 @@ def read_csv(path: Path) -> GpsTrack:
         except (ValueError, IndexError):
             raise EgovidError(f"{path} line {n} is not a GPS fix: {','.join(row)[:60]}", _FIX) from None
     return _finish(t, lat, lon, sp, be, str(path), {})
+
+
+def gps_beside(video: Path) -> Path:
+    """The GPS file beside a video: same name, extension .gpx, .nmea or .csv (either case)."""
+    for ext in GPS_EXTENSIONS:
+        for cand in (video.with_suffix(ext), video.with_suffix(ext.upper())):
+            if cand.exists():
+                return cand
+    raise EgovidError(
+        f"no GPS track for {video.name}: no {video.stem}.gpx, .nmea or .csv beside it",
+        "give the drive's GPS log with --gps FILE",
+    )
 
 
 def read_track(path: str | os.PathLike) -> GpsTrack:

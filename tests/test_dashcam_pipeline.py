@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
+from egovid.dashcam.align import ALIGNERS
 from egovid.dashcam.align.orb import (
     OrbScorer,
     ScaleRefiner,
@@ -15,7 +16,6 @@ from egovid.dashcam.align.orb import (
     smooth_monotone,
 )
 from egovid.dashcam.align.seqslam import align_seqslam, descriptor
-from egovid.dashcam.ingest.align import StreamingAlignment
 from egovid.dashcam.ingest.frames import RefFrames
 
 
@@ -97,7 +97,7 @@ def test_streamed_alignment_gives_the_whole_sequence_aligners_matches(sequences,
     else:
         want = np.clip(np.round(prior), 0, len(ref) - 1)
     mem = MemoryRef(ref)
-    stream = StreamingAlignment(kind, mem, prior, speed_new, speed_ref, stopped, 30.0)
+    stream = ALIGNERS[kind](mem, prior, speed_new, speed_ref, stopped, 30.0)
     got, lag = [], 0
     for k, g in enumerate(new):
         got += stream.push(g)
@@ -117,7 +117,7 @@ def test_aligning_every_second_frame_searches_half_the_frames_and_keeps_the_matc
     got, searched = {}, {}
     for every in (1, 2):
         mem = MemoryRef(ref)
-        stream = StreamingAlignment("orb", mem, prior, speed_new, speed_ref, stopped, 30.0, every)
+        stream = ALIGNERS["orb"](mem, prior, speed_new, speed_ref, stopped, 30.0, every)
         step, calls = stream.search.step, []
         stream.search.step = lambda k, f, step=step, calls=calls: calls.append(k) or step(k, f)
         out = []
@@ -351,3 +351,22 @@ def test_the_older_drives_frames_passed_on_the_way_are_kept_not_decoded_again(tm
     finally:
         refs.close()
     assert len(decoded) == len(set(decoded)) and set(range(60)) <= set(decoded)
+
+
+def test_the_aligner_registry_is_what_the_cli_offers_and_checks():
+    """``--aligner`` names every registered aligner (its help is written out, so that ``--help``
+    does not load OpenCV), the default first, and the options refuse a name not registered."""
+    import inspect
+
+    from egovid.cli import dashcam as cli
+    from egovid.core.errors import EgovidError
+    from egovid.dashcam.align import DEFAULT_ALIGNER
+    from egovid.dashcam.ingest.options import IngestOptions
+
+    option = inspect.signature(cli.ingest).parameters["aligner"].default
+    offered = [part.split()[0] for part in option.help.rstrip(".").split(" | ")]
+    assert offered == list(ALIGNERS) and option.default == DEFAULT_ALIGNER == IngestOptions().aligner
+    for name, cls in ALIGNERS.items():
+        assert cls.name == name and IngestOptions(aligner=name).check().aligner == name
+    with pytest.raises(EgovidError, match="choose one of orb, orb-plain, seqslam, gps"):
+        IngestOptions(aligner="magic").check()

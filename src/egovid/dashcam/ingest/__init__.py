@@ -8,7 +8,8 @@
 * :mod:`run` — a drive's stages with the archive's locks (:func:`ingest`, :func:`ingest_drive`).
 """
 
-from egovid.dashcam.ingest.options import ALIGNERS, BASELINE_ALIGN, IngestOptions
+from egovid.dashcam.align import ALIGNERS
+from egovid.dashcam.ingest.options import BASELINE_ALIGN, IngestOptions
 from egovid.dashcam.ingest.records import DriveInput, IngestReport, PieceReport
 from egovid.dashcam.ingest.run import ingest, ingest_drive
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from egovid.core.motion.features import FrameFeatures
 from egovid.dashcam.align.orb import MatchCache, OrbScorer, ScaleRefiner, small_gray
+from egovid.dashcam.align.seqslam import descriptor
 from egovid.dashcam.extract import DriveFrames, FrameSource, read_ahead
 from egovid.dashcam.route.trips import iter_trip_frames
 
@@ -129,8 +130,6 @@ class RefFrames:
 
     def desc(self, j: int) -> np.ndarray:
         """SeqSLAM descriptor."""
-        from egovid.dashcam.align.seqslam import descriptor
-
         d = self._desc.get(j)
         if d is None:
             d = self._desc[j] = descriptor(self.gray(j))

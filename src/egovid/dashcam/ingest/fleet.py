@@ -29,6 +29,8 @@ from egovid.dashcam.ingest.sources import FileSource, IngestPlan
 from egovid.dashcam.route.tracks import GpsTrack, _finish
 from egovid.dashcam.route.trips import Trip
 
+ALREADY_IN = "already in the archive"  # why a file whose drive was ingested before is skipped
+
 
 @dataclass
 class FleetRecord:
@@ -95,7 +97,12 @@ def prepare(
     name: str | None = None,
     lock_events: bool = True,
 ) -> list[PreparedDrive]:
-    """The drives of an ingest plan, with their audio/telemetry already in the blob store."""
+    """The drives of an ingest plan, with their audio/telemetry already in the blob store.
+
+    An archive made without the fleet tables (``Archive.create`` without ``setup``) gets them here,
+    before any drive is committed: made inside a commit, they would list the drive being added
+    as an older one."""
+    FleetStore(archive.catalogue)
     taken = {d.name for d in archive.catalogue.drives()}
     if name is not None and len(plan.trips.trips) > 1:
         raise EgovidError(f"--name {name!r} names one drive, but the inputs make {len(plan.trips.trips)}",
@@ -108,7 +115,7 @@ def prepare(
         if nm in taken:
             if single:
                 raise EgovidError(f"a drive named {nm!r} is already in the archive", "pass --name to choose another")
-            plan.skipped.append((trip.parts[0].file.path, f"already in the archive as drive {nm!r}"))
+            plan.skipped.append((trip.parts[0].file.path, f"{ALREADY_IN} as drive {nm!r}"))
             continue
         taken.add(nm)
         start = float(trip.parts[0].start_utc)

@@ -110,7 +110,6 @@ def prepare(
     out = []
     single = len(plan.trips.trips) == 1 and not plan.skipped
     for trip in plan.trips.trips:
-        srcs = [plan.sources[p.file.path] for p in trip.parts]
         nm = name or trip.parts[0].file.path.stem
         if nm in taken:
             if single:
@@ -118,38 +117,45 @@ def prepare(
             plan.skipped.append((trip.parts[0].file.path, f"{ALREADY_IN} as drive {nm!r}"))
             continue
         taken.add(nm)
-        start = float(trip.parts[0].start_utc)
-        fps = srcs[0].info.fps
-        parts, f = [], 0
-        media = []
-        for i, (p, s) in enumerate(zip(trip.parts, srcs, strict=True)):
-            n = len(s.times)
-            parts.append(DrivePart(i, str(s.path.resolve()), f, f + n, float(p.start_utc), float(p.gap_before)))
-            media.append((s.path, f / fps, n / fps))
-            f += n
-        blob, info = archive_streams(media)
-        sha = archive.blobs.put(blob) if blob is not None else None
-        track = _joined_track(srcs)
-        end = float(trip.parts[-1].start_utc + srcs[-1].duration)
-        inside = (track.t >= start - 5) & (track.t <= end + 5)
-        meta = DriveMeta(
-            0,
-            kind=trip.kind,
-            channel=srcs[0].channel,
-            locked=lock_events and trip.kind == "event",
-            lock_note="event file" if lock_events and trip.kind == "event" else None,
-            clock={"source": srcs[0].clock.source, "start": dt.datetime.fromtimestamp(start, dt.UTC).isoformat(),
-                   "notes": sorted({n for s in srcs for n in s.clock.notes}),
-                   "parts": [s.clock.source for s in srcs]},
-            colour=_colour(srcs[0].info),
-            streams_blob=sha,
-            streams_bytes=len(blob) if blob is not None else 0,
-            streams_info=info.to_dict(),
-        )  # fmt: skip
-        rec = FleetRecord(meta, parts, (track.t[inside], track.lat[inside], track.lon[inside]), track.source)
-        notes = list(meta.clock["notes"]) + [f"not archived: {x}" for x in info.skipped]
-        out.append(PreparedDrive(nm, trip, srcs, start, track, rec, notes))
+        out.append(_prepare_trip(archive, nm, trip, [plan.sources[p.file.path] for p in trip.parts], lock_events))
     return out
+
+
+def _prepare_trip(archive: Archive, name: str, trip: Trip, srcs: list[FileSource], lock_events: bool) -> PreparedDrive:
+    """One trip made a drive: its files' frame ranges, its audio/telemetry blob (stored now), its
+    GPS track and its fleet rows."""
+    start = float(trip.parts[0].start_utc)
+    fps = srcs[0].info.fps
+    parts, f = [], 0
+    media = []
+    for i, (p, s) in enumerate(zip(trip.parts, srcs, strict=True)):
+        n = len(s.times)
+        parts.append(DrivePart(i, str(s.path.resolve()), f, f + n, float(p.start_utc), float(p.gap_before)))
+        media.append((s.path, f / fps, n / fps))
+        f += n
+    blob, info = archive_streams(media)
+    sha = archive.blobs.put(blob) if blob is not None else None
+    track = _joined_track(srcs)
+    end = float(trip.parts[-1].start_utc + srcs[-1].duration)
+    inside = (track.t >= start - 5) & (track.t <= end + 5)
+    locked = lock_events and trip.kind == "event"
+    meta = DriveMeta(
+        0,
+        kind=trip.kind,
+        channel=srcs[0].channel,
+        locked=locked,
+        lock_note="event file" if locked else None,
+        clock={"source": srcs[0].clock.source, "start": dt.datetime.fromtimestamp(start, dt.UTC).isoformat(),
+               "notes": sorted({n for s in srcs for n in s.clock.notes}),
+               "parts": [s.clock.source for s in srcs]},
+        colour=srcs[0].info.colour.to_dict(),
+        streams_blob=sha,
+        streams_bytes=len(blob) if blob is not None else 0,
+        streams_info=info.to_dict(),
+    )  # fmt: skip
+    rec = FleetRecord(meta, parts, (track.t[inside], track.lat[inside], track.lon[inside]), track.source)
+    notes = list(meta.clock["notes"]) + [f"not archived: {x}" for x in info.skipped]
+    return PreparedDrive(name, trip, srcs, start, track, rec, notes)
 
 
 def drive_input(p: PreparedDrive) -> DriveInput:
@@ -179,9 +185,3 @@ def drive_probe(p: PreparedDrive) -> VideoProbe:
     starts = [float(x.start_utc) for x in p.trip.parts]
     times = np.concatenate([s.times + (t - starts[0]) for s, t in zip(p.sources, starts, strict=True)])
     return VideoProbe(p.sources[0].path, p.sources[0].info, times, p.start_utc)
-
-
-def _colour(info) -> dict:
-    """The colour tags of a probed video (VideoInfo.colour), as a dict."""
-    tags = getattr(info, "colour", None)
-    return tags.to_dict() if tags is not None else {}

@@ -158,6 +158,22 @@ class EncodedPiece:
     seconds: float = 0.0
     peak_frames_held: int = 0
 
+    def report(self, path_id: int) -> PieceReport:
+        """What the ingest's report says about the piece, now on path ``path_id``."""
+        return PieceReport(
+            self.frames,
+            path_id,
+            self.mode,
+            self.ref_drive_name,
+            self.nbytes,
+            self.standalone_bytes,
+            self.psnr_y,
+            self.stopped_frames,
+            self.prior_fallbacks,
+            self.seconds,
+            self.peak_frames_held,
+        )
+
 
 @dataclass
 class PieceReport:

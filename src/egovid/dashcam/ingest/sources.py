@@ -65,7 +65,7 @@ class FileSource:
     @property
     def duration(self) -> float:
         """Seconds from the first frame to the end of the last (one frame period after its start)."""
-        return float(self.times[-1]) + 1.0 / max(self.info.fps, 1e-6) if len(self.times) else 0.0
+        return span(self.times, self.info.fps)
 
     def file_info(self) -> FileInfo:
         """The file as the trip planner sees it (a clock read from creation_time or a file name
@@ -90,7 +90,7 @@ def _read_log(path: Path, mtime: float) -> GpsTrack | None:
         return None
 
 
-def _folder_log(path: Path, info: VideoInfo, times: np.ndarray, clock: ClockOptions) -> tuple[GpsTrack, str] | None:
+def _folder_log(path: Path, info: VideoInfo, duration: float, clock: ClockOptions) -> tuple[GpsTrack, str] | None:
     """A GPS log in the video's folder that covers it, for a video with no GPS of its own: loggers
     and some cameras write one log per drive, named after its first file, so the later loop files of
     the drive have none beside them. A log counts only where the video's own clock (creation_time,
@@ -100,7 +100,6 @@ def _folder_log(path: Path, info: VideoInfo, times: np.ndarray, clock: ClockOpti
     if created is None and named is None:
         return None  # nothing would place the video inside another file's log
     cands = sorted(f for f in path.parent.iterdir() if f.is_file() and f.suffix.lower() in exts)
-    duration = float(times[-1]) + 1.0 / max(info.fps, 1e-6)
     for f in cands:
         track = _read_log(f, f.stat().st_mtime)
         if track is None:
@@ -114,6 +113,23 @@ def _folder_log(path: Path, info: VideoInfo, times: np.ndarray, clock: ClockOpti
     return None
 
 
+def _own_gps(path: Path, embedded: EmbeddedGps | None) -> tuple[GpsTrack, str] | None:
+    """The file's own GPS and where it came from: the log beside it, else the video's embedded
+    fixes; None when it has neither."""
+    side = _beside(path)
+    if side is not None:
+        return read_track(side), str(side)
+    if embedded is not None:
+        return embedded.track, f"embedded: {embedded.reader}"
+    return None
+
+
+def span(times: np.ndarray, fps: float) -> float:
+    """Seconds from a video's first frame to the end of its last (one frame period after its
+    start), given its frame times (seconds) and frame rate."""
+    return float(times[-1]) + 1.0 / max(fps, 1e-6) if len(times) else 0.0
+
+
 def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions, *, batch: bool = False) -> FileSource:
     """Look at one file (see the module docstring); raises :class:`EgovidError` naming what is
     missing (a video that does not decode, no GPS anywhere: ``--gps``, a clock no GPS confirms).
@@ -124,25 +140,15 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
     times = frame_times(path)
     check_frame_size(path, info)
     embedded = read_embedded_gps(path)
-    source = "--gps"
-    track = log
-    if track is None:
-        side = _beside(path)
-        if side is not None:
-            track, source = read_track(side), str(side)
-    if track is None and embedded is not None:
-        track, source = embedded.track, f"embedded: {embedded.reader}"
-    if track is None:
-        folder_log = _folder_log(path, info, times, clock)
-        if folder_log is not None:
-            track, source = folder_log
-    if track is None:
+    duration = span(times, info.fps)
+    found = (log, "--gps") if log is not None else _own_gps(path, embedded) or _folder_log(path, info, duration, clock)
+    if found is None:
         raise EgovidError(
             f"no GPS for {path.name}: none embedded in the video (ExifTool, NMEA text track) and no "
             f"{path.stem}.gpx, .nmea or .csv beside it",
             "give the drive's GPS log with --gps FILE",
         )
-    duration = float(times[-1]) + 1.0 / max(info.fps, 1e-6)
+    track, source = found
 
     def place(log_track: GpsTrack) -> VideoClock:
         return resolve_clock(
@@ -160,12 +166,7 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
     try:
         vc = place(track)
     except EgovidError:
-        if not batch or source != "--gps":
-            raise
-        side = _beside(path)
-        own = (read_track(side), str(side)) if side is not None else None
-        if own is None and embedded is not None:
-            own = (embedded.track, f"embedded: {embedded.reader}")
+        own = _own_gps(path, embedded) if batch and source == "--gps" else None
         if own is None:
             raise
         track, source = own

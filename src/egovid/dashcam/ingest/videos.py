@@ -24,12 +24,10 @@ from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.ingest.fleet import ALREADY_IN, PreparedDrive, drive_input, prepare
 from egovid.dashcam.ingest.options import IngestOptions
 from egovid.dashcam.ingest.records import IngestReport
-from egovid.dashcam.ingest.run import ingest_drive, ingest_many, plan_batch
+from egovid.dashcam.ingest.run import Progress, ingest_drive, ingest_many, plan_batch
 from egovid.dashcam.ingest.sources import ClockOptions, plan_ingest
 from egovid.dashcam.route.tracks import GpsTrack
 from egovid.dashcam.route.trips import MAX_GAP_S
-
-Progress = Callable[[str, int, int], None]
 
 
 def _quiet(*_args) -> None:

@@ -110,20 +110,11 @@ def fixes_from_exiftool(tags: dict, source: str = "") -> EmbeddedGps | None:
     has one time for several fixes (GoPro GPS5), the fixes are spread evenly over the sample's
     duration from it. Video times: the document's sample time, fixes spread evenly over its duration.
     """
-    docs: dict[int, dict[float, dict[str, object]]] = {}
-    for key, value in tags.items():
-        m = _KEY.match(key)
-        if not m:
-            continue
-        doc = int(m.group(1) or 0)
-        copy = float(m.group(2)) if m.group(2) else math.inf
-        docs.setdefault(doc, {}).setdefault(copy, {})[m.group(3)] = value
     dropped = {"no fix": 0, "imprecise": 0, "no time": 0}
     rows: list[tuple[float, float, float, float, float, float]] = []  # utc, video_t, lat, lon, speed, bearing
-    for doc in sorted(docs):
+    for doc, samples in sorted(_documents(tags).items()):
         if doc == 0:
             continue  # the container's own tags (a single GPSPosition is no track)
-        samples = docs[doc]
         meta = {k: v for s in samples.values() for k, v in s.items() if k in ("SampleTime", "SampleDuration")}
         fixes = [s for _, s in sorted(samples.items()) if "GPSLatitude" in s and "GPSLongitude" in s]
         if not fixes:
@@ -138,21 +129,9 @@ def fixes_from_exiftool(tags: dict, source: str = "") -> EmbeddedGps | None:
             order = np.argsort(given, kind="stable")  # trust the fixes' own times over tag order
             fixes, times = [fixes[i] for i in order], [given[i] for i in order]
         for k, (s, utc) in enumerate(zip(fixes, times, strict=True)):
-            lat, lon = as_float(s.get("GPSLatitude")), as_float(s.get("GPSLongitude"))
-            status = str(s.get("GPSStatus", "A")).strip().upper()[:1]
-            mode = as_float(s.get("GPSMeasureMode"))
-            if not (math.isfinite(lat) and math.isfinite(lon)) or (abs(lat) < 1e-6 and abs(lon) < 1e-6):
-                dropped["no fix"] += 1
-                continue
-            if status == "V" or (math.isfinite(mode) and mode < 2):
-                dropped["no fix"] += 1
-                continue
-            dop = as_float(s.get("GPSHPositioningError", s.get("GPSDOP")))
-            if math.isfinite(dop) and dop > MAX_HDOP:
-                dropped["imprecise"] += 1
-                continue
-            if utc is None:
-                dropped["no time"] += 1
+            why = _unusable(s, utc)
+            if why is not None:
+                dropped[why] += 1
                 continue
             vt = (
                 t0 + k * dur / n
@@ -160,8 +139,39 @@ def fixes_from_exiftool(tags: dict, source: str = "") -> EmbeddedGps | None:
                 else (t0 if math.isfinite(t0) else math.nan)
             )
             bearing = as_float(s.get("GPSTrack")) if str(s.get("GPSTrackRef", "T")).upper()[:1] == "T" else math.nan
+            lat, lon = as_float(s.get("GPSLatitude")), as_float(s.get("GPSLongitude"))
             rows.append((utc, vt, lat, lon, _speed_ms(s.get("GPSSpeed"), s.get("GPSSpeedRef")), bearing))
     return _embedded(rows, f"ExifTool ({source})" if source else "ExifTool", {k: v for k, v in dropped.items() if v})
+
+
+def _documents(tags: dict) -> dict[int, dict[float, dict[str, object]]]:
+    """ExifTool's tags by document (``DocN``; 0 for the container's own) and copy (``CopyM``; inf
+    for the one without a number), the tag names without those prefixes."""
+    docs: dict[int, dict[float, dict[str, object]]] = {}
+    for key, value in tags.items():
+        m = _KEY.match(key)
+        if not m:
+            continue
+        doc = int(m.group(1) or 0)
+        copy = float(m.group(2)) if m.group(2) else math.inf
+        docs.setdefault(doc, {}).setdefault(copy, {})[m.group(3)] = value
+    return docs
+
+
+def _unusable(sample: dict, utc: float | None) -> str | None:
+    """Why one fix of ExifTool's is dropped ("no fix", "imprecise", "no time"), None if it is
+    kept: no position or the (0, 0) of no fix yet, status V or a measure mode below 2-D, a
+    horizontal dilution of precision above :data:`MAX_HDOP`, no time."""
+    lat, lon = as_float(sample.get("GPSLatitude")), as_float(sample.get("GPSLongitude"))
+    if not (math.isfinite(lat) and math.isfinite(lon)) or (abs(lat) < 1e-6 and abs(lon) < 1e-6):
+        return "no fix"
+    mode = as_float(sample.get("GPSMeasureMode"))
+    if str(sample.get("GPSStatus", "A")).strip().upper()[:1] == "V" or (math.isfinite(mode) and mode < 2):
+        return "no fix"
+    dop = as_float(sample.get("GPSHPositioningError", sample.get("GPSDOP")))
+    if math.isfinite(dop) and dop > MAX_HDOP:
+        return "imprecise"
+    return "no time" if utc is None else None
 
 
 def _fix_time(sample: dict) -> float | None:

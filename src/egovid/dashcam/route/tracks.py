@@ -62,16 +62,6 @@ class GpsTrack:
         b = np.unwrap(np.radians(self.bearing))
         return np.interp(t, self.t, self.speed), np.degrees(np.interp(t, self.t, b)) % 360.0
 
-    def at(self, t: np.ndarray, origin: tuple[float, float]) -> dict[str, np.ndarray]:
-        """Positions (metres), speed and bearing interpolated at UTC times ``t``."""
-        xy = self.xy(origin)
-        speed, bearing = self.motion_at(t)
-        return {
-            "xy": np.stack([np.interp(t, self.t, xy[:, 0]), np.interp(t, self.t, xy[:, 1])], axis=1),
-            "speed": speed,
-            "bearing": bearing,
-        }
-
     def between(self, t0: float, t1: float) -> GpsTrack:
         """The fixes with ``t0 <= t <= t1`` (UTC seconds)."""
         k = (self.t >= t0) & (self.t <= t1)
@@ -84,14 +74,6 @@ def project(lat, lon, origin: tuple[float, float]) -> np.ndarray:
     x = np.radians(np.asarray(lon, dtype=float) - lon0) * EARTH_R * math.cos(math.radians(lat0))
     y = np.radians(np.asarray(lat, dtype=float) - lat0) * EARTH_R
     return np.stack([x, y], axis=-1)
-
-
-def unproject(xy: np.ndarray, origin: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse of :func:`project`."""
-    lat0, lon0 = origin
-    lat = lat0 + np.degrees(xy[..., 1] / EARTH_R)
-    lon = lon0 + np.degrees(xy[..., 0] / (EARTH_R * math.cos(math.radians(lat0))))
-    return lat, lon
 
 
 def _derive(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, speed, bearing) -> tuple[np.ndarray, np.ndarray]:

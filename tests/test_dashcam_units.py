@@ -537,3 +537,16 @@ def test_scale_refiner_finds_the_frame_level_with_the_new_one():
     assert got.min() >= 0 and got.max() <= 17
     assert np.mean(got == truth) >= 0.85 and np.max(np.abs(got - truth)) <= 1
     assert np.all(got[12:16] == got[11]) and np.all(np.diff(got) >= 0)
+
+
+def test_a_track_covering_less_than_80_percent_of_the_video_is_refused():
+    """The stages' coverage check is the clock's rule (hand-computed spans)."""
+    from egovid.core.errors import EgovidError
+    from egovid.dashcam.ingest.stages import check_coverage
+    from egovid.dashcam.route.tracks import GpsTrack
+
+    t = 1777881600.0 + np.arange(101.0)  # fixes over 100 s
+    track = GpsTrack(t, np.full(101, 40.0), np.full(101, -86.0), np.ones(101), np.zeros(101), "log.gpx")
+    check_coverage(track, t[10] + np.arange(0.0, 100.1, 0.5), "v.mp4", "log.gpx")  # 90 of 100 s
+    with pytest.raises(EgovidError, match="covers 50% of video v.mp4"):
+        check_coverage(track, t[50] + np.arange(0.0, 100.1, 0.5), "v.mp4", "log.gpx")

@@ -13,7 +13,8 @@ For every file :func:`examine` finds:
 
 :func:`plan_ingest` then groups the files into trips (:mod:`egovid.dashcam.route.trips`); files that
 cannot be used are listed with the reason. Nothing is decoded here but the first frame of each file
-(``probe``) and its packet times.
+(``probe``) and its packet times (core.video.frame_times); both travel with the drive to the
+stages (:func:`~egovid.dashcam.ingest.fleet.drive_probe`), so each file is demuxed once per ingest.
 """
 
 from __future__ import annotations

@@ -38,6 +38,7 @@ from egovid.dashcam.ingest.records import (
     SplitPlan,
     VideoProbe,
 )
+from egovid.dashcam.route.clock import MIN_COVER, coverage
 from egovid.dashcam.route.paths import match_path, resample, smooth_track, split_drive, split_points, split_positions
 from egovid.dashcam.route.plane import project_on_polyline, range_overlap
 from egovid.dashcam.route.tracks import GpsTrack, gps_beside, project, read_track
@@ -101,11 +102,10 @@ def track_stage(inp: DriveInput, vp: VideoProbe) -> DriveTrack:
 
 
 def check_coverage(track: GpsTrack, t_video: np.ndarray, video_name: str, gps_name: str) -> None:
-    """Refuse a track that covers less than 80 % of the video's time span."""
-    lo, hi = max(track.t[0], t_video[0]), min(track.t[-1], t_video[-1])
-    span = max(t_video[-1] - t_video[0], 1e-6)
-    covered = max(0.0, hi - lo) / span
-    if covered < 0.8:
+    """Refuse a track that covers less than :data:`~egovid.dashcam.route.clock.MIN_COVER` (80 %) of
+    the video's time span (``t_video``: UTC seconds of every frame)."""
+    covered = coverage(track, float(t_video[0]), float(t_video[-1] - t_video[0]))
+    if covered < MIN_COVER:
         v0 = dt.datetime.fromtimestamp(t_video[0], dt.UTC).isoformat(timespec="seconds")
         g0 = dt.datetime.fromtimestamp(track.t[0], dt.UTC).isoformat(timespec="seconds")
         raise EgovidError(

@@ -548,5 +548,5 @@ def test_a_track_covering_less_than_80_percent_of_the_video_is_refused():
     t = 1777881600.0 + np.arange(101.0)  # fixes over 100 s
     track = GpsTrack(t, np.full(101, 40.0), np.full(101, -86.0), np.ones(101), np.zeros(101), "log.gpx")
     check_coverage(track, t[10] + np.arange(0.0, 100.1, 0.5), "v.mp4", "log.gpx")  # 90 of 100 s
-    with pytest.raises(EgovidError, match="covers 50% of video v.mp4"):
+    with pytest.raises(EgovidError, match=r"covers 50% of video v\.mp4"):
         check_coverage(track, t[50] + np.arange(0.0, 100.1, 0.5), "v.mp4", "log.gpx")

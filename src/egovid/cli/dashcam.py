@@ -146,11 +146,8 @@ def ingest(
     """
     from egovid.cli import validate
     from egovid.core.engine import EngineConfig, scheduler_address
-    from egovid.core.errors import EgovidError
-    from egovid.dashcam.ingest import IngestOptions
-    from egovid.dashcam.ingest.fleet import drive_input, prepare
-    from egovid.dashcam.ingest.run import ingest_drive, ingest_many, plan_batch
-    from egovid.dashcam.ingest.sources import ClockOptions, plan_ingest
+    from egovid.core.files import atomic_write_text
+    from egovid.dashcam import ingest as library
 
     validate.number(gps_offset, "--gps-offset", lo=-7 * 86400, hi=7 * 86400, unit="s")
     validate.number(tz_offset, "--tz-offset", lo=-14, hi=14, unit="hours")
@@ -164,7 +161,7 @@ def ingest(
             validate.input_file(v, "video")
     log = validate.gps_input(gps) if gps is not None else None
     validate.outputs(videos, (json_out, validate.JSON, "--json"))
-    opts = IngestOptions.from_preset(
+    opts = library.IngestOptions.from_preset(
         preset,
         q=q,
         speed=speed,
@@ -176,70 +173,39 @@ def ingest(
         measure_savings=measure_savings,
         verify=verify,
     ).check()
-    config = EngineConfig(scheduler=scheduler_address(scheduler), workers=workers, retries=2)
+    engine = EngineConfig(scheduler=scheduler_address(scheduler), workers=workers, retries=2)
     with staged_progress() as cb:
-        plan = plan_ingest(
+        result = library.ingest_videos(
+            ar,
             videos,
             gps=log,
-            clock=ClockOptions(start_utc, tz_offset, gps_offset),
+            clock=library.ClockOptions(start_utc, tz_offset, gps_offset),
+            name=name,
             join=join,
             max_gap=max_gap,
-            on_file=lambda k, n: cb("examine", k, n),
+            lock_events=lock_events,
+            options=opts,
+            engine=engine,
+            hooks=library.IngestHooks(
+                progress=cb,
+                skipped=lambda path, why: err_console.print(f"skipped {path}: {why}"),
+                batch=lambda n, where: console.print(f"{n} drives, oldest first, on {where} (preset {opts.preset})"),
+                drive=_print_outcome,
+            ),
         )
-        prepared = prepare(ar, plan, name=name, lock_events=lock_events)
-    for path, why in plan.skipped:
-        err_console.print(f"skipped {path}: {why}")
-    skipped = [{"file": str(f), "reason": why} for f, why in plan.skipped]
-    if not prepared:
-        if any(why.startswith("already in the archive") for _f, why in plan.skipped):
-            # The same card again (a sync job): nothing new is not a failure (the rest is listed above).
-            if json_out is not None:
-                from egovid.core.files import atomic_write_text
-
-                atomic_write_text(json_out, json.dumps({"drives": [], "failed": [], "skipped": skipped}, indent=1))
-            console.print("nothing new: the drives of these videos are already in the archive")
-            return
-        raise EgovidError("nothing to ingest: every video was skipped", "see the reasons above")
-    fleet = {p.name: p for p in prepared}
-    drives = [drive_input(p) for p in prepared]
-    if len(drives) == 1 and config.scheduler is None:
-        with staged_progress() as cb:
-            rep = ingest_drive(ar, drives[0], opts, progress=cb)
-        _print_report(rep, fleet.get(rep.name))
-        if json_out is not None:
-            from egovid.core.files import atomic_write_text
-
-            doc = {**rep.to_dict(), **fleet[rep.name].summary(), "skipped": skipped}
-            atomic_write_text(json_out, json.dumps(doc, indent=1, default=str))
-        return
-    batch = plan_batch(ar, drives, opts)
-    where = f"Dask cluster {config.scheduler}" if config.scheduler else f"{workers} local worker(s)"
-    console.print(f"{len(batch.jobs)} drives, oldest first, on {where} (preset {opts.preset})")
-    results, failed = [], []
-    with staged_progress() as cb:
-        cb("drives", 0, len(batch.jobs))
-        for res in ingest_many(ar, batch, config):
-            if res.report is not None:
-                results.append(res.report)
-                _print_report(res.report, fleet.get(res.report.name))
-            else:
-                failed.append(res)
-                console.print(f"[red]drive {res.name!r} not added[/]: {res.error}")
-            cb("drives", len(results) + len(failed), len(batch.jobs))
     if json_out is not None:
-        from egovid.core.files import atomic_write_text
+        atomic_write_text(json_out, json.dumps(result.to_dict(), indent=1, default=str))
+    if result.nothing_new:  # the same card again (a sync job): not a failure (the rest is listed above)
+        console.print("nothing new: the drives of these videos are already in the archive")
+    result.check()
 
-        doc = {
-            "drives": [{**r.to_dict(), **fleet[r.name].summary()} for r in results],
-            "failed": [{"drive": f.name, "error": f.error} for f in failed],
-            "skipped": skipped,
-        }
-        atomic_write_text(json_out, json.dumps(doc, indent=1, default=str))
-    if failed:
-        raise EgovidError(
-            f"{len(failed)} of {len(batch.jobs)} drives were not added ({', '.join(f.name for f in failed)})",
-            "see the reasons above; the other drives are in the archive, run the command again for these",
-        )
+
+def _print_outcome(outcome) -> None:
+    """A drive of the ingest ended: its report, or why it was not added."""
+    if outcome.report is not None:
+        _print_report(outcome.report, outcome.prepared)
+    else:
+        console.print(f"[red]drive {outcome.name!r} not added[/]: {outcome.error}")
 
 
 def _print_report(rep, fleet=None) -> None:
@@ -437,15 +403,13 @@ def report(
 
 def _utc(text: str, option: str) -> float:
     """``--at``/``--from``/``--to``: ISO 8601 (``2024-05-04T08:00:00Z``, ``+02:00``; no zone = UTC)."""
-    import datetime as dt
-
     from egovid.core.errors import EgovidError
+    from egovid.core.times import iso_to_utc
 
     try:
-        t = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+        return iso_to_utc(text)
     except ValueError:
         raise EgovidError(f"{option} {text!r} is not an ISO 8601 time", "write e.g. 2024-05-04T08:00:00Z") from None
-    return (t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp()
 
 
 def _floats(text: str, n: int, option: str, example: str) -> tuple[float, ...]:

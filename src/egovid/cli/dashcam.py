@@ -62,13 +62,13 @@ def init(
     from egovid.dashcam.archive.catalogue import redact_url
     from egovid.dashcam.archive.fleetstore import FleetStore
     from egovid.dashcam.archive.store import Archive
-    from egovid.dashcam.codec.vpx import self_test
+    from egovid.dashcam.codec.registry import describe
 
     output_folder(archive, what="archive folder")
     ar = Archive.create(archive, db, blobs, setup=FleetStore)  # the fleet tables (PostGIS where the server has it)
     cat = ar.meta["catalogue"]
     where = "SQLite" if cat["backend"] == "sqlite" else f"PostgreSQL {redact_url(cat['url'])}, schema {cat['schema']}"
-    console.print(f"archive {archive} created (catalogue: {where}; blobs: {ar.blobs.url}; codec: {self_test()})")
+    console.print(f"archive {archive} created (catalogue: {where}; blobs: {ar.blobs.url}; codec: {describe()})")
 
 
 @app.command("ingest")
@@ -111,7 +111,20 @@ def ingest(
         "(libvpx's good-quality deadline on 2 threads: 31 %, about 4x slower) | archive (good-quality, "
         "1 thread: smallest files, slowest). See docs/dashcam.md. The options below override it.",
     ),
-    q: int = typer.Option(32, min=0, max=63, help="VP9 quantiser (0 = best quality, 63 = smallest)."),
+    q: int = typer.Option(
+        32,
+        min=0,
+        max=63,
+        help="Quantiser on libvpx's 0-63 scale (0 = best quality, 63 = smallest): VP9 pieces at q, AV1 pieces at "
+        "SVT-AV1 CRF q + 14, measured to give the same PSNR-Y.",
+    ),
+    codec: str = typer.Option(
+        None,
+        "--codec",
+        help="What pieces stored standalone are coded with: av1 (default: SVT-AV1, decoded with dav1d) | vp9 "
+        "(libvpx, as archives before AV1). A piece with an older drive is coded both ways, against the older "
+        "drive (VP9) and standalone, and the smaller at equal PSNR-Y is kept.",
+    ),
     speed: int = typer.Option(None, min=0, max=9, help="libvpx cpu-used (default: the preset's): higher = faster."),
     threads: int = typer.Option(None, min=1, max=64, help="libvpx threads (default: the preset's)."),
     gop: int = typer.Option(
@@ -184,6 +197,7 @@ def ingest(
     opts = IngestOptions.from_preset(
         preset,
         q=q,
+        codec=codec,
         speed=speed,
         threads=threads,
         gop=gop,
@@ -262,8 +276,10 @@ def ingest(
 def _print_report(rep, fleet=None) -> None:
     """An ingest's report on the console (``fleet``: the prepared drive, for its files and clock)."""
     for p in rep.pieces:
-        saving = f", saving {100 * p.saving:.1f} % vs standalone" if p.saving is not None else ""
+        saving = f", saving {100 * p.saving:.1f} % vs standalone AV1" if p.ref_drive and p.saving is not None else ""
         ref = f" against {p.ref_drive}" if p.ref_drive else " (root: no older drive of this path and light)"
+        if not p.ref_drive and p.standalone_bytes is not None:
+            ref = " (standalone: smaller than coded against the older drive)"
         console.print(
             f"{rep.name} frames {p.frames[0]}-{p.frames[1] - 1}: path {p.path_id}, {p.mode}{ref}, "
             f"{p.bytes / 1024:.0f} KiB, PSNR-Y {p.psnr_y:.2f} dB{saving}"

@@ -26,8 +26,8 @@ from egovid.core.errors import EgovidError
 from egovid.core.video import VideoWriter
 from egovid.dashcam.archive.blobs import BlobStore
 from egovid.dashcam.archive.catalogue import Drive, Segment
+from egovid.dashcam.codec import registry, vpx
 from egovid.dashcam.codec import segment as codec
-from egovid.dashcam.codec import vpx
 
 DAMAGED = "the archive or one of its reference drives is damaged"
 
@@ -80,10 +80,10 @@ def segment_frames(source: FrameSource, seg: Segment, start: int = 0, stop: int 
         r0 = start // refresh
         r1 = min(len(offsets) - 1, -(-stop // refresh))
         packets = _ranged_packets(source.blobs, seg.blob, lay, offsets, r0, r1)
-        frames = codec.decode_runs(lay, packets, r0, baselines(source, seg, r0 * refresh), start)
+        frames = registry.decode_runs(lay, packets, r0, baselines(source, seg, r0 * refresh), start)
     else:
         blob = source.blobs.get(seg.blob)
-        frames = codec.decode_segment(blob, baselines(source, seg, codec.run_start(blob, start)), start)
+        frames = registry.decode_segment(blob, baselines(source, seg, codec.run_start(blob, start)), start)
     return itertools.islice(frames, stop - start)
 
 

@@ -4,7 +4,7 @@ dashcam report``; a table or JSON)."""
 from __future__ import annotations
 
 from egovid.dashcam.archive.store import Archive
-from egovid.dashcam.codec import vpx
+from egovid.dashcam.codec import registry
 
 
 def archive_report(archive: Archive) -> dict:
@@ -72,5 +72,5 @@ def archive_report(archive: Archive) -> dict:
         "drives": per_drive,
         "paths": paths_out,
         "blob_bytes": archive.blobs.total_bytes(),
-        "codec": vpx.self_test(),
+        "codec": registry.describe(),
     }

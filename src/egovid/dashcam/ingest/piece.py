@@ -38,8 +38,8 @@ import numpy as np
 from egovid.core.errors import EgovidError
 from egovid.dashcam.align.illumination import frame_features
 from egovid.dashcam.align.orb import OrbScorer, small_gray, warm_up, wide_window
+from egovid.dashcam.codec import registry, vpx
 from egovid.dashcam.codec import segment as codec
-from egovid.dashcam.codec import vpx
 from egovid.dashcam.extract import FrameSource
 from egovid.dashcam.ingest.align import StreamingAlignment
 from egovid.dashcam.ingest.frames import InputFrame, RefFrames
@@ -130,13 +130,6 @@ class _Prefetch:
         self.stop.set()
         self.thread.join()
         self.refs.close()
-
-
-class _Discard:
-    """A spool that keeps nothing (the standalone encode is measured, not stored)."""
-
-    def write(self, data: bytes) -> int:
-        return len(data)
 
 
 class _PieceRun:
@@ -315,7 +308,7 @@ class _PieceRun:
 
 
 def _encode_from(pipe: _Pipe, clock: dict, stage: str, *args, **kwargs) -> codec.EncodedSegment:
-    """codec.encode_segment of the frames coming down ``pipe`` (baselines with them)."""
+    """registry.encode_segment of the frames coming down ``pipe`` (baselines with them)."""
     bases: dict[int, np.ndarray] = {}
 
     def frames() -> Iterator[np.ndarray]:
@@ -334,11 +327,98 @@ def _encode_from(pipe: _Pipe, clock: dict, stage: str, *args, **kwargs) -> codec
 
     local: dict = {}
     try:
-        return codec.encode_segment(frames(), *args, baselines=baseline, clock=local, **kwargs)
+        return registry.encode_segment(frames(), *args, baselines=baseline, clock=local, **kwargs)
     finally:
         for key, v in local.items():
-            name = stage if key == "encode" else key
+            # the encoder's seconds go to ``stage``; the verifying decoder's to "verify", or to
+            # "verify:standalone" beside a joint encode
+            name = stage if key == "encode" else key if stage == "encode" else f"{key}:{stage}"
             clock[name] = clock.get(name, 0.0) + v
+
+
+#: dB of PSNR-Y per halving of the bytes, near the archive's quantisers (SVT-AV1 and libvpx on the
+#: synthetic drives: 1.7-2.4): how a joint and a standalone encode of a piece at slightly different
+#: quality are compared at equal quality (:func:`keep_joint`).
+DB_PER_HALVING = 2.0
+
+
+def keep_joint(joint: codec.EncodedSegment, alone: codec.EncodedSegment) -> tuple[bool, str]:
+    """Whether the joint encode of a piece is the one to store, and why: the smaller at equal
+    PSNR-Y (the joint bytes scaled by 2^(ΔPSNR / :data:`DB_PER_HALVING`) to the standalone's
+    quality)."""
+    equal = joint.nbytes * 2.0 ** ((joint.psnr_y - alone.psnr_y) / DB_PER_HALVING)
+    kept = equal < alone.nbytes
+    return kept, (
+        f"joint {joint.nbytes} B at {joint.psnr_y:.2f} dB (= {equal:.0f} B at {alone.psnr_y:.2f} dB) vs "
+        f"standalone {alone.nbytes} B at {alone.psnr_y:.2f} dB: {'joint' if kept else 'standalone'} is smaller"
+    )
+
+
+class _Encoders:
+    """The piece's encoders, each in its own thread on its own pipe from the producer: the stored
+    candidate(s) — the standalone encode (``opts.codec``) and, where the piece has an older drive,
+    the joint VP9 encode — each spooled to a temporary file."""
+
+    def __init__(self, run: _PieceRun, opts: IngestOptions, fps: float, size, clock, progress) -> None:
+        self.jobs: dict[str, dict] = {}
+        self.pipes: list[_Pipe] = []
+        w, h = size
+        joint = run.ref is not None
+        n_runs = len(codec.substreams(run.n, opts.refresh))
+        self.followed: list[int] = []
+        picks = opts.verified_runs(n_runs, run.piece.frames[0])
+
+        def verified(i: int) -> bool:
+            if picks(i):
+                self.followed.append(i)
+                return True
+            return False
+
+        if joint:
+            st = opts.encoder_settings(fps)
+            kw = {"verify": opts.verify, "verify_runs": verified, "progress": progress}
+            self._add("joint", "encode", st, w, h, kw)
+        st = opts.standalone_settings(fps)
+        kw = {} if joint else {"verify": opts.verify, "verify_runs": verified, "progress": progress}
+        self._add("standalone", "standalone" if joint else "encode", st, w, h, kw)
+
+    def _add(self, name: str, stage: str, settings, w: int, h: int, kw: dict) -> None:
+        pipe = _Pipe(QUEUE)
+        spool = tempfile.TemporaryFile(prefix=f"egovid-{name}-")  # noqa: SIM115 - closed by close()
+        job = {"pipe": pipe, "spool": spool, "settings": settings}
+
+        def work() -> None:
+            try:
+                job["seg"] = _encode_from(pipe, self.clock, stage, w, h, settings, spool=spool, **kw)
+            except BaseException as exc:
+                job["error"] = exc
+                pipe.stop.set()
+
+        job["thread"] = threading.Thread(target=work, name=f"egovid-{name}", daemon=True)
+        self.jobs[name] = job
+        self.pipes.append(pipe)
+
+    def run(self, producer: threading.Thread, clock: dict) -> dict[str, codec.EncodedSegment]:
+        """Start the producer and the encoders, wait for all; the segments by name."""
+        self.clock = clock
+        producer.start()
+        for job in self.jobs.values():
+            job["thread"].start()
+        try:
+            for job in self.jobs.values():
+                job["thread"].join()
+        finally:
+            for p in self.pipes:
+                p.stop.set()
+            producer.join()
+        for job in self.jobs.values():
+            if "error" in job:
+                raise job["error"]
+        return {name: job["seg"] for name, job in self.jobs.items()}
+
+    def close(self) -> None:
+        for job in self.jobs.values():
+            job["spool"].close()
 
 
 def encode_piece(
@@ -356,102 +436,81 @@ def encode_piece(
 ) -> EncodedPiece:
     """Baseline, align, encode and verify one piece, taking its frames from ``frames`` (the drive's
     one decode pass, positioned at the piece's first frame); the blob goes to ``source.blobs``.
-    ``clock`` accumulates busy seconds per stage (decode, analyse, reference, align, baseline,
-    encode, verify, standalone) and the encoder's waits."""
+
+    A piece without an older drive is coded standalone (``opts.codec``); one with an older drive
+    is coded both ways at once, joint (VP9 with the baseline) and standalone, and the smaller at
+    equal PSNR-Y is stored (:func:`keep_joint`; the reason is recorded in the segment's
+    ``choice``). ``clock`` accumulates busy seconds per stage (decode, analyse, reference, align,
+    baseline, encode, verify, standalone) and the encoders' waits."""
     clock = clock if clock is not None else {}
     t_start = time.perf_counter()
     run = _PieceRun(source, piece, frames, track, fps, size, opts, clock)
     if piece.candidates and opts.aligner in ("orb", "orb-plain"):
         warm_up()  # while the first frames are decoded for the choice of the baseline
     run.choose()
-    settings = opts.encoder_settings(fps)
-    w, h = size
-    pipes = [_Pipe(QUEUE)] + ([_Pipe(QUEUE)] if run.ref is not None and opts.measure_savings else [])
-    producer = threading.Thread(target=run.produce, args=(pipes,), name=f"egovid-piece-{piece.index}", daemon=True)
-    alone: dict = {}
-
-    def standalone() -> None:
-        try:
-            alone["seg"] = _encode_from(pipes[1], clock, "standalone", w, h, settings, spool=_Discard())
-        except BaseException as exc:
-            alone["error"] = exc
-            pipes[1].stop.set()
-
-    helper = threading.Thread(target=standalone, name="egovid-standalone", daemon=True) if len(pipes) > 1 else None
     cb = (lambda k: progress("encode", done + k, n_total)) if progress else None
-    producer.start()
-    if helper is not None:
-        helper.start()
-    with tempfile.TemporaryFile(prefix="egovid-segment-") as spool:
-        try:
-            picks = opts.verified_runs(len(codec.substreams(run.n, settings.refresh)), piece.frames[0])
-            followed: list[int] = []
-
-            def verified(i: int) -> bool:
-                if picks(i):
-                    followed.append(i)
-                    return True
-                return False
-
-            enc = _encode_from(
-                pipes[0],
-                clock,
-                "encode",
-                w,
-                h,
-                settings,
-                progress=cb,
-                verify=opts.verify,
-                verify_runs=verified,
-                spool=spool,
-            )
-        finally:
-            for p in pipes:
-                p.stop.set()
-            producer.join()
-            if helper is not None:
-                helper.join()
-        if "error" in alone:
-            raise alone["error"]
+    encoders = _Encoders(run, opts, fps, size, clock, cb)
+    producer = threading.Thread(
+        target=run.produce, args=(encoders.pipes,), name=f"egovid-piece-{piece.index}", daemon=True
+    )
+    try:
+        segs = encoders.run(producer, clock)
+        alone = segs["standalone"]
+        joint = segs.get("joint")
+        kept, why = keep_joint(joint, alone) if joint is not None else (False, "no older drive of this path and light")
+        name = "joint" if kept else "standalone"
+        enc = segs[name]
         t0 = time.perf_counter()
         sha = source.blobs.put_chunks(enc.chunks())
         run.tick("store", t0)
-    ref = run.ref
-    standalone_bytes = alone["seg"].nbytes if "seg" in alone else None
+    finally:
+        encoders.close()
+    return _encoded(run, opts, enc, sha, kept, why, encoders, alone if joint is not None else None, joint, t_start)
+
+
+def _encoded(run, opts, enc, sha, kept, why, encoders, alone, joint, t_start) -> EncodedPiece:
+    """The piece's record: the kept encode, its settings and the choice."""
+    st = encoders.jobs["joint" if kept else "standalone"]["settings"]
+    w, h = run.size
     params = {
         "width": w,
         "height": h,
-        "q": opts.q,
-        "speed": opts.speed,
-        "realtime": opts.realtime,
-        "threads": opts.threads,
-        "gop": opts.gop,
-        "refresh": opts.refresh,
+        "codec": st.codec,
+        "q": st.q,
+        "speed": st.speed,
+        "realtime": st.realtime,
+        "threads": st.threads,
+        "gop": st.gop,
+        "refresh": st.refresh,
         "preset": opts.preset,
         "recon_digest": enc.recon_digest,
         "run_digests": enc.run_digests,
         "run_offsets": enc.run_offsets,
         "psnr_y": enc.psnr_y,
-        "verified_runs": followed if opts.verify else [],  # runs the verifying decoder followed
+        "verified_runs": encoders.followed if opts.verify and kept == (joint is not None) else [],
         "aligner": opts.aligner,
-        "standalone_bytes": standalone_bytes,
-        "standalone_psnr_y": alone["seg"].psnr_y if "seg" in alone else None,
+        "choice": why,
+        "joint_bytes": joint.nbytes if joint is not None else None,
+        "joint_psnr_y": joint.psnr_y if joint is not None else None,
+        "standalone_bytes": alone.nbytes if alone is not None else None,
+        "standalone_psnr_y": alone.psnr_y if alone is not None else None,
         "stopped_frames": int(run.stopped.sum()),
         "prior_fallbacks": run.fallbacks,
     }
+    ref = run.ref if kept else None
     return EncodedPiece(
-        piece.frames,
+        run.piece.frames,
         "joint" if ref is not None else "intra",
         ref.drive_id if ref is not None else None,
         ref.drive_name if ref is not None else None,
-        run.refmap,
-        run.align,
+        run.refmap if ref is not None else np.full(run.n, -1, np.int64),
+        run.align if ref is not None else {"kind": "none"},
         sha,
         enc.nbytes,
         params,
         run.illum_sum / max(run.illum_n, 1),
         enc.psnr_y,
-        standalone_bytes,
+        params["standalone_bytes"],
         int(run.stopped.sum()),
         run.fallbacks,
         time.perf_counter() - t_start,

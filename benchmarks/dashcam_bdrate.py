@@ -104,7 +104,7 @@ def bd(r1, p1, r2, p2) -> float:
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return float(bjontegaard.bd_rate(r1, p1, r2, p2, method="pchip", min_overlap=0))
+        return float(bjontegaard.bd_rate(r1, p1, r2, p2, method="pchip", min_overlap=0, require_matching_points=False))
 
 
 def egovid(*args) -> None:
@@ -144,6 +144,7 @@ def archive_point(ref_video: Path, new_video: Path, preset: str, q: int, codec: 
 
 def plain(frames: list[np.ndarray], codec: str, crf: int, options: dict) -> dict:
     """One drive coded alone by ``codec`` (PyAV), decoded, PSNR-Y against ``frames``; encode fps."""
+    os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1's banner and configuration at every start otherwise
     h, w = frames[0].shape[0] * 2 // 3, frames[0].shape[1]
     cc = av.CodecContext.create(codec, "w")
     cc.width, cc.height, cc.pix_fmt = w, h, "yuv420p"

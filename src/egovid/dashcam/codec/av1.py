@@ -71,17 +71,21 @@ def encode_segment(
     verify_runs: Callable[[int], bool] | None = None,
     clock: dict | None = None,
     spool=None,
+    on_run: Callable[[int, int, float], None] | None = None,
 ) -> segment.EncodedSegment:
     """Encode unpadded I420 frames with SVT-AV1 (standalone: ``baselines`` must give none).
 
     The same contract as :func:`egovid.dashcam.codec.segment.encode_segment`: the digests, PSNR-Y,
     ``keep_recon`` and ``progress`` are of dav1d's pictures of the packets, in display order;
-    ``verify`` and ``verify_runs`` change nothing (the pictures are always the decoder's).
+    ``verify`` and ``verify_runs`` change nothing (the pictures are always the decoder's); ``on_run``
+    as there.
     ``clock['encode']`` / ``clock['verify']`` accumulate the encoder's and the decoder's seconds."""
     del verify, verify_runs  # every picture is a decoder's already
     clock = clock if clock is not None else {}
     pw, ph = vpx.padded_size(width, height)
-    out = segment.SegmentWriter(width, height, settings.refresh, spool=spool, keep_recon=keep_recon, progress=progress)
+    out = segment.SegmentWriter(
+        width, height, settings.refresh, spool=spool, keep_recon=keep_recon, progress=progress, on_run=on_run
+    )
     enc, dec = _encoder(pw, ph, settings), _Dav1d()
     sources: dict[int, np.ndarray] = {}
     state = {"coded": 0, "shown": 0}

@@ -425,9 +425,12 @@ class SegmentWriter:
     first byte, per-frame sizes, and in display order the digests, the PSNR-Y against the source,
     ``keep_recon`` and ``progress``. :meth:`result` packs it as an :class:`EncodedSegment`."""
 
-    def __init__(self, width: int, height: int, refresh: int, *, spool=None, keep_recon=None, progress=None) -> None:
+    def __init__(
+        self, width: int, height: int, refresh: int, *, spool=None, keep_recon=None, progress=None, on_run=None
+    ) -> None:
         self.width, self.height, self.refresh = width, height, refresh
-        self.spool, self.keep_recon, self.progress = spool, keep_recon, progress
+        self.spool, self.keep_recon, self.progress, self.on_run = spool, keep_recon, progress, on_run
+        self.shown_bytes = 0
         self.packets: list[bytes] = []
         self.n_packets = self.n_bytes = 0
         self.run_body: list[int] = []  # offset of each run's first packet after the header
@@ -460,11 +463,14 @@ class SegmentWriter:
             self.digests.add(r)
             self.se += float(cv2.norm(r[: self.height], src[: self.height], cv2.NORM_L2SQR))
             self.pix += self.height * self.width
+            self.shown_bytes += self.size_of[self.next]
             if self.keep_recon is not None:
                 self.keep_recon.append(r)
             self.next += 1
             if self.progress is not None:
                 self.progress(self.next)
+            if self.on_run is not None and self.refresh and self.next % self.refresh == 0:
+                self.on_run(self.next, self.shown_bytes, self.se / self.pix)
 
     def close(self) -> None:
         self.digests.close()
@@ -579,6 +585,7 @@ def encode_segment(
     verify_runs: Callable[[int], bool] | None = None,
     clock: dict | None = None,
     spool=None,
+    on_run: Callable[[int, int, float], None] | None = None,
 ) -> EncodedSegment:
     """VP9: encode unpadded I420 frames; ``baselines(k)`` gives frame k's padded baseline (or None).
 
@@ -591,9 +598,13 @@ def encode_segment(
     ``verify_runs(i)``: whether it follows random-access run i (default: every run; a run begins
     with a keyframe, so the decoder can skip runs). ``clock['encode']`` / ``clock['verify']``
     accumulate seconds. ``spool``: a binary file the packets are written to as they come (memory
-    stays flat however long the segment)."""
+    stays flat however long the segment). ``on_run(frames, bytes, mse)``: called whenever the first
+    ``frames`` (a whole number of random-access runs) are coded, with their bytes and mean squared
+    error (what an early choice between encodes compares)."""
     vpx.self_test()
-    out = SegmentWriter(width, height, settings.refresh, spool=spool, keep_recon=keep_recon, progress=progress)
+    out = SegmentWriter(
+        width, height, settings.refresh, spool=spool, keep_recon=keep_recon, progress=progress, on_run=on_run
+    )
     coder = _VP9Coder(width, height, settings, out, verify, verify_runs, clock if clock is not None else {})
 
     def base(k: int) -> np.ndarray | None:

@@ -65,8 +65,11 @@ class _Pipe:
     def __init__(self, size: int) -> None:
         self.q: queue.Queue = queue.Queue(size)
         self.stop = threading.Event()
+        self.dropped = threading.Event()  # its encoder lost the early choice: items go nowhere
 
     def put(self, item) -> None:
+        if self.dropped.is_set():
+            return
         while not self.stop.is_set():
             try:
                 self.q.put(item, timeout=0.1)
@@ -81,7 +84,14 @@ class _Pipe:
 
     def __iter__(self):
         while True:
-            item = self.q.get()
+            try:
+                item = self.q.get(timeout=0.1)
+            except queue.Empty:
+                if self.dropped.is_set():
+                    raise _DroppedError from None
+                continue
+            if self.dropped.is_set():
+                raise _DroppedError
             if item is self._END:
                 return
             if isinstance(item, BaseException):
@@ -91,6 +101,10 @@ class _Pipe:
 
 class _StoppedError(Exception):
     pass
+
+
+class _DroppedError(Exception):
+    """Raised to an encoder whose encode lost the early choice (:class:`_Referee`)."""
 
 
 class _Prefetch:
@@ -255,6 +269,14 @@ class _PieceRun:
                     fr, self.head[k] = self.head[k], None
                 else:
                     fr = self.analyse(self.next_frame())
+                if aligner is not None and pipes[0].dropped.is_set():  # standalone won: stop aligning
+                    self.fallbacks = aligner.fallbacks
+                    for j in sorted(held):
+                        for p in pipes[1:]:
+                            p.put((j, held[j], None))
+                    held.clear()
+                    aligner = None
+                    self.refs.close()
                 if aligner is None:
                     for p in pipes:
                         p.put((k, fr.image, None))
@@ -274,7 +296,7 @@ class _PieceRun:
                 self.peak_held = max(self.peak_held, len(held) + self.refs.held)
             if aligner is not None:
                 self.fallbacks = aligner.fallbacks
-                if k_out != self.n:
+                if k_out != self.n and not pipes[0].dropped.is_set():
                     raise RuntimeError(f"the alignment gave {k_out} of {self.n} matches")
             for p in pipes:
                 p.close()
@@ -342,16 +364,54 @@ def _encode_from(pipe: _Pipe, clock: dict, stage: str, *args, **kwargs) -> codec
 DB_PER_HALVING = 2.0
 
 
-def keep_joint(joint: codec.EncodedSegment, alone: codec.EncodedSegment) -> tuple[bool, str]:
-    """Whether the joint encode of a piece is the one to store, and why: the smaller at equal
-    PSNR-Y (the joint bytes scaled by 2^(ΔPSNR / :data:`DB_PER_HALVING`) to the standalone's
-    quality)."""
-    equal = joint.nbytes * 2.0 ** ((joint.psnr_y - alone.psnr_y) / DB_PER_HALVING)
-    kept = equal < alone.nbytes
+#: Random-access runs after which a piece's joint and standalone encodes are compared and the
+#: larger one stopped (the rest of the piece is coded by one encoder; with ``--measure-savings``
+#: both run to the end and the whole piece decides).
+DECIDE_RUNS = 2
+
+
+def keep_joint(joint: tuple[int, float], alone: tuple[int, float]) -> tuple[bool, str]:
+    """Whether the joint encode of a piece is the one to store, and why, given (bytes, PSNR-Y) of
+    each: the smaller at equal PSNR-Y (the joint bytes scaled by 2^(ΔPSNR / :data:`DB_PER_HALVING`)
+    to the standalone's quality)."""
+    (jb, jp), (sb, sp) = joint, alone
+    equal = jb * 2.0 ** ((jp - sp) / DB_PER_HALVING)
+    kept = equal < sb
     return kept, (
-        f"joint {joint.nbytes} B at {joint.psnr_y:.2f} dB (= {equal:.0f} B at {alone.psnr_y:.2f} dB) vs "
-        f"standalone {alone.nbytes} B at {alone.psnr_y:.2f} dB: {'joint' if kept else 'standalone'} is smaller"
+        f"joint {jb} B at {jp:.2f} dB (= {equal:.0f} B at {sp:.2f} dB) vs standalone {sb} B at {sp:.2f} dB: "
+        f"{'joint' if kept else 'standalone'} is smaller"
     )
+
+
+def _psnr(mse: float) -> float:
+    return 10 * float(np.log10(255.0**2 / mse)) if mse > 0 else 100.0
+
+
+class _Referee:
+    """The early choice between a piece's joint and standalone encodes: when both have coded the
+    first ``at`` frames (:data:`DECIDE_RUNS` runs), :func:`keep_joint` on those frames, and the
+    other encoder is stopped (its pipe dropped; the producer stops aligning if it was the joint)."""
+
+    def __init__(self, jobs: dict, at: int) -> None:
+        self.jobs, self.at = jobs, at
+        self.seen: dict[str, tuple[int, float]] = {}
+        self.lock = threading.Lock()
+        self.loser: str | None = None
+        self.why = ""
+
+    def hook(self, name: str) -> Callable[[int, int, float], None]:
+        def on_run(frames: int, nbytes: int, mse: float) -> None:
+            if frames != self.at:
+                return
+            with self.lock:
+                self.seen[name] = (nbytes, _psnr(mse))
+                if len(self.seen) == 2 and self.loser is None:
+                    kept, why = keep_joint(self.seen["joint"], self.seen["standalone"])
+                    self.loser = "standalone" if kept else "joint"
+                    self.why = f"first {frames} frames: {why}"
+                    self.jobs[self.loser]["pipe"].dropped.set()
+
+        return on_run
 
 
 class _Encoders:
@@ -374,15 +434,26 @@ class _Encoders:
                 return True
             return False
 
+        shown = [0]
+
+        def once(k: int) -> None:  # two encoders report the same frames: count each once
+            if progress is not None and k > shown[0]:
+                shown[0] = k
+                progress(k)
+
+        at = DECIDE_RUNS * opts.refresh
+        self.referee = _Referee(self.jobs, at) if joint and not opts.measure_savings and 0 < at < run.n else None
         if joint:
             st = opts.encoder_settings(fps)
-            kw = {"verify": opts.verify, "verify_runs": verified, "progress": progress}
+            kw = {"verify": opts.verify, "verify_runs": verified, "progress": once}
             self._add("joint", "encode", st, w, h, kw)
         st = opts.standalone_settings(fps)
-        kw = {} if joint else {"verify": opts.verify, "verify_runs": verified, "progress": progress}
+        kw = {"progress": once} if joint else {"verify": opts.verify, "verify_runs": verified, "progress": once}
         self._add("standalone", "standalone" if joint else "encode", st, w, h, kw)
 
     def _add(self, name: str, stage: str, settings, w: int, h: int, kw: dict) -> None:
+        if self.referee is not None:
+            kw = {**kw, "on_run": self.referee.hook(name)}
         pipe = _Pipe(QUEUE)
         spool = tempfile.TemporaryFile(prefix=f"egovid-{name}-")  # noqa: SIM115 - closed by close()
         job = {"pipe": pipe, "spool": spool, "settings": settings}
@@ -390,6 +461,8 @@ class _Encoders:
         def work() -> None:
             try:
                 job["seg"] = _encode_from(pipe, self.clock, stage, w, h, settings, spool=spool, **kw)
+            except _DroppedError:
+                job["dropped"] = True
             except BaseException as exc:
                 job["error"] = exc
                 pipe.stop.set()
@@ -414,7 +487,7 @@ class _Encoders:
         for job in self.jobs.values():
             if "error" in job:
                 raise job["error"]
-        return {name: job["seg"] for name, job in self.jobs.items()}
+        return {name: job["seg"] for name, job in self.jobs.items() if "seg" in job}
 
     def close(self) -> None:
         for job in self.jobs.values():
@@ -455,17 +528,20 @@ def encode_piece(
     )
     try:
         segs = encoders.run(producer, clock)
-        alone = segs["standalone"]
-        joint = segs.get("joint")
-        kept, why = keep_joint(joint, alone) if joint is not None else (False, "no older drive of this path and light")
-        name = "joint" if kept else "standalone"
-        enc = segs[name]
+        alone, joint = segs.get("standalone"), segs.get("joint")
+        if run.ref is None:
+            kept, why = False, "no older drive of this path and light"
+        elif encoders.referee is not None and encoders.referee.loser is not None:
+            kept, why = encoders.referee.loser == "standalone", encoders.referee.why
+        else:
+            kept, why = keep_joint((joint.nbytes, joint.psnr_y), (alone.nbytes, alone.psnr_y))
+        enc = segs["joint" if kept else "standalone"]
         t0 = time.perf_counter()
         sha = source.blobs.put_chunks(enc.chunks())
         run.tick("store", t0)
     finally:
         encoders.close()
-    return _encoded(run, opts, enc, sha, kept, why, encoders, alone if joint is not None else None, joint, t_start)
+    return _encoded(run, opts, enc, sha, kept, why, encoders, alone if run.ref is not None else None, joint, t_start)
 
 
 def _encoded(run, opts, enc, sha, kept, why, encoders, alone, joint, t_start) -> EncodedPiece:
@@ -487,7 +563,7 @@ def _encoded(run, opts, enc, sha, kept, why, encoders, alone, joint, t_start) ->
         "run_digests": enc.run_digests,
         "run_offsets": enc.run_offsets,
         "psnr_y": enc.psnr_y,
-        "verified_runs": encoders.followed if opts.verify and kept == (joint is not None) else [],
+        "verified_runs": encoders.followed if opts.verify and kept == (run.ref is not None) else [],
         "aligner": opts.aligner,
         "choice": why,
         "joint_bytes": joint.nbytes if joint is not None else None,

@@ -61,7 +61,7 @@ def test_a_new_drive_is_coded_against_an_old_vp9_drive(old_archive, tmp_path):
     smaller of joint and standalone is kept and the reason recorded."""
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
-    spec = DriveSpec(legs=[("main", 380.0, 430.0)], cruise=10.0, seed=3, light=Light.preset("noon"))
+    spec = DriveSpec(legs=[("main", 390.0, 430.0)], cruise=10.0, seed=3, light=Light.preset("noon"))
     video, gps, _ = render_drive(spec, tmp_path / "c.mp4", width=192, height=108)
     for name, extra in (("c-vp9", ["--codec", "vp9"]), ("c", [])):
         r = run_cli("dashcam", "ingest", old_archive, video, "--gps", gps, "--name", name, *extra)

@@ -149,9 +149,9 @@ def decode_runs(
     packet of run ``first_run`` on (which must hold ``start`` or come before it)."""
     del baselines  # an AV1 segment refers to no other drive
     k = lay.run_packets()[first_run][0]  # one packet per frame
-    if k > segment._run_start(lay.refresh, start):
+    if k > segment.period_start(lay.refresh, start):
         raise ValueError("decoding must start at or before the run holding the first frame asked for")
-    skip = segment._run_start(lay.refresh, start)
+    skip = segment.period_start(lay.refresh, start)
     dec = _Dav1d()
     shown = k
     for pkt in packets:

@@ -1,4 +1,8 @@
-"""Segment bitstreams: VP9 with the older drive's aligned frames as a free reference (§14.2).
+"""Segment bitstreams: the container every codec backend writes (header, random-access run
+layout, length-prefixed packets; the magic names the codec: ``EGV9`` VP9, ``EGA1`` AV1, see
+:mod:`egovid.dashcam.codec.registry`), the writer they share (:class:`SegmentWriter`: digests,
+PSNR, spool), and the VP9 backend: VP9 with the older drive's aligned frames as a free reference
+(§14.2). The AV1 backend is :mod:`egovid.dashcam.codec.av1`.
 
 A *segment* is a run of a drive's frames coded as one VP9 stream: **intra** (a root, a plain VP9
 stream) or **joint** (every frame after the keyframe may also predict from the *baseline*: the
@@ -308,10 +312,11 @@ def run_start(blob: bytes, k: int) -> int:
     only the blob's header)."""
     if len(blob) < _HEADER.size + _LAYOUT.size or _HEADER.unpack_from(blob, 0)[1] < 3:
         return 0
-    return _run_start(_LAYOUT.unpack_from(blob, _HEADER.size)[0], k)
+    return period_start(_LAYOUT.unpack_from(blob, _HEADER.size)[0], k)
 
 
-def _run_start(refresh: int, k: int) -> int:
+def period_start(refresh: int, k: int) -> int:
+    """The first frame of the random-access run of period ``refresh`` (0: one run) holding frame ``k``."""
     return k - k % refresh if refresh > 0 else 0
 
 
@@ -655,7 +660,7 @@ def decode_runs(
     w, h, gop = lay.width, lay.height, lay.gop
     plan = lay.plan()
     p0 = lay.run_packets()[first_run][0]
-    skip = _run_start(lay.refresh, start)
+    skip = period_start(lay.refresh, start)
     if plan[p0][0] > skip:
         raise ValueError("decoding must start at or before the run holding the first frame asked for")
     pw, ph = vpx.padded_size(w, h)

@@ -127,8 +127,12 @@ def ingest(
         "(libvpx, as archives before AV1). A piece with an older drive is coded both ways, against the older "
         "drive (VP9) and standalone, and the smaller at equal PSNR-Y is kept.",
     ),
-    speed: int = typer.Option(None, min=0, max=9, help="libvpx cpu-used (default: the preset's): higher = faster."),
-    threads: int = typer.Option(None, min=1, max=64, help="libvpx threads (default: the preset's)."),
+    speed: int = typer.Option(
+        None, min=0, max=9, help="libvpx cpu-used of the VP9 joint candidate (default: the preset's): higher = faster."
+    ),
+    threads: int = typer.Option(
+        None, min=1, max=64, help="Encoder threads, libvpx's and SVT-AV1's (default: the preset's)."
+    ),
     gop: int = typer.Option(
         8,
         min=1,

@@ -232,13 +232,13 @@ def main() -> None:
                 "new drive modes": sorted({m for p in row["egovid"] for m in p["new"]["modes"]}),
             }
             if with_vp9:
-                today = row["egovid-vp9 (today)"]
-                summary["new drive vs today's VP9 joint %"] = bd(*curve(today, "new"), *curve(row["egovid"], "new"))
+                old = row["egovid-vp9 (today)"]
+                summary["new drive vs today's VP9 joint %"] = bd(*curve(old, "new"), *curve(row["egovid"], "new"))
                 summary["whole archive vs today's VP9 archive %"] = bd(
-                    *curve([together(p["first"], p["new"]) for p in today]),
+                    *curve([together(p["first"], p["new"]) for p in old]),
                     *curve([together(p["first"], p["new"]) for p in row["egovid"]]),
                 )
-                summary["today's VP9 joint vs plain SVT-AV1 %"] = bd(*svt_new, *curve(today, "new"))
+                summary["today's VP9 joint vs plain SVT-AV1 %"] = bd(*svt_new, *curve(old, "new"))
             row["summary"] = summary
             results["pairs"][name] = row
             print(name, {k: (round(v, 2) if isinstance(v, float) else v) for k, v in summary.items()}, flush=True)

@@ -50,7 +50,17 @@ def archive(drives, tmp_path_factory):
     for name in ("a", "b", "c"):
         video, gps, _ = drives[name]
         r = run_cli(
-            "dashcam", "ingest", root, video, "--gps", gps, "--measure-savings", "--json", root.parent / f"{name}.json"
+            "dashcam",
+            "ingest",
+            root,
+            video,
+            "--gps",
+            gps,
+            "--codec",
+            "vp9",
+            "--measure-savings",
+            "--json",
+            root.parent / f"{name}.json",
         )
         assert r.returncode == 0, r.stderr
         reports[name] = json.loads((root.parent / f"{name}.json").read_text())
@@ -257,7 +267,7 @@ def test_kill_during_ingest_leaves_archive_consistent(archive, drives, tmp_path)
     extract_video(ar, ar.drive_or_fail("a"), tmp_path / "a.mkv")
     assert sum(1 for _ in iter_frames(tmp_path / "a.mkv")) == ar.catalogue.drive("a").frames
     # And the same drive can be ingested afterwards.
-    opts = IngestOptions(measure_savings=False)
+    opts = IngestOptions(measure_savings=False, codec="vp9")
     (rep,) = ingest_videos(ar, [video], gps=gps, options=opts, name="after-crash").reports
     assert rep.pieces[0].mode == "joint"
 
@@ -271,7 +281,7 @@ def test_postgresql_catalogue(archive, drives, pg_url, tmp_path):
     assert r.returncode == 0 and "PostgreSQL" in r.stdout, r.stderr
     for name in ("a", "b"):
         video, gps, _ = drives[name]
-        r = run_cli("dashcam", "ingest", root, video, "--gps", gps)
+        r = run_cli("dashcam", "ingest", root, video, "--gps", gps, "--codec", "vp9")
         assert r.returncode == 0, r.stderr
     assert _state(root) == [2, 1, 2, 2]
     # Drive b was coded against a alone in both archives: the catalogue changes no bit.

@@ -15,6 +15,7 @@ from egovid.dashcam.align.stops import stopped_frames
 from egovid.dashcam.archive.catalogue import PostgresCatalogue, SqliteCatalogue
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.codec import vpx
+from egovid.dashcam.codec.settings import EncoderSettings
 from egovid.dashcam.route.paths import match_path, resample, split_drive, split_points
 from egovid.dashcam.route.tracks import project, read_track
 
@@ -264,7 +265,7 @@ def test_injected_reference_decodes_bit_exactly(kind, gop, refresh, realtime):
         return None if k == 5 else codec.apply_alignment(vpx.pad_i420(refs[k], w, h), w, h, kind, params)
 
     recon = []
-    settings = vpx.EncoderSettings(
+    settings = EncoderSettings(
         q=30, speed=9 if realtime else 6, realtime=realtime, gop=gop, refresh=refresh, start_speed=5 if realtime else 0
     )
     enc = codec.encode_segment(iter(frames), w, h, settings, baseline, keep_recon=recon, verify=True)
@@ -319,7 +320,7 @@ def test_a_run_started_from_the_baseline_is_cheaper_than_a_keyframe(realtime):
         ref, base = _i420(rng, w, h)
         refs.append(ref)
         frames.append(_i420(rng, w, h, base, 1)[0])
-    settings = vpx.EncoderSettings(q=20, speed=9 if realtime else 6, realtime=realtime, refresh=2)
+    settings = EncoderSettings(q=20, speed=9 if realtime else 6, realtime=realtime, refresh=2)
 
     def baseline(k):
         return vpx.pad_i420(refs[k], w, h)
@@ -341,7 +342,7 @@ def test_the_verifying_decoder_follows_the_chosen_runs_and_catches_a_wrong_pictu
     w, h, n, refresh = 64, 48, 20, 4  # 5 runs
     _ref, base = _i420(rng, w, h)
     frames = [_i420(rng, w, h, base, k % 6)[0] for k in range(n)]
-    settings = vpx.EncoderSettings(q=30, speed=6, gop=2, refresh=refresh)
+    settings = EncoderSettings(q=30, speed=6, gop=2, refresh=refresh)
     plan = codec.coding_plan(n, 2, refresh, [codec.START_KEY] * 5)
     real = vpx.VP9Decoder.decode
     decoded: list[int] = []
@@ -440,7 +441,7 @@ def test_version_1_and_2_low_delay_blobs_still_decode():
     rng = np.random.default_rng(4)
     frames = [_i420(rng, 32, 32)[0] for _ in range(4)]
     recon = []
-    blob = codec.encode_segment(iter(frames), 32, 32, vpx.EncoderSettings(q=40, speed=8), keep_recon=recon).blob
+    blob = codec.encode_segment(iter(frames), 32, 32, EncoderSettings(q=40, speed=8), keep_recon=recon).blob
     sb = codec.parse(blob)
     for version, gop in ((1, 0), (2, 1)):  # version 1 had no GOP, versions 1-2 no run layout
         head = codec._HEADER.pack(codec.MAGIC, version, 32, 32, 32, 32, len(sb.packets), sb.q, gop)
@@ -451,7 +452,7 @@ def test_version_1_and_2_low_delay_blobs_still_decode():
 def test_damaged_blob_is_refused():
     rng = np.random.default_rng(2)
     frames = [_i420(rng, 32, 32)[0] for _ in range(2)]
-    blob = codec.encode_segment(iter(frames), 32, 32, vpx.EncoderSettings(q=40, speed=8)).blob
+    blob = codec.encode_segment(iter(frames), 32, 32, EncoderSettings(q=40, speed=8)).blob
     with pytest.raises(EgovidError, match="truncated"):
         codec.parse(blob[:-5])
     with pytest.raises(EgovidError, match="format"):

@@ -138,7 +138,8 @@ def _dashcam(folder: Path, quick: bool) -> None:
     for video, gps, _ in (monday, tuesday):
         (rep,) = ingest_videos(ar, [video], gps=gps, options=IngestOptions(measure_savings=True)).reports
         for p in rep.pieces:
-            saving = f", {100 * p.saving:.1f} % smaller than standalone VP9" if p.saving is not None else ""
+            joint = p.ref_drive and p.saving is not None
+            saving = f", {100 * p.saving:.1f} % smaller than standalone AV1" if joint else ""
             console.print(
                 f"{rep.name}: {p.mode}{' against ' + p.ref_drive if p.ref_drive else ''}, "
                 f"{p.bytes / 1024:.0f} KiB{saving}"

@@ -31,8 +31,8 @@ from egovid.dashcam.archive.catalogue import Drive, Segment
 from egovid.dashcam.archive.fleetstore import FleetStore, live_drive
 from egovid.dashcam.archive.references import check_chain
 from egovid.dashcam.archive.store import Archive
+from egovid.dashcam.codec import registry, vpx
 from egovid.dashcam.codec import segment as codec
-from egovid.dashcam.codec import vpx
 from egovid.dashcam.codec.streams import StreamCopier
 
 DAMAGED = "the archive or one of its reference drives is damaged"
@@ -86,10 +86,10 @@ def segment_frames(source: FrameSource, seg: Segment, start: int = 0, stop: int 
         r0 = start // refresh
         r1 = min(len(offsets) - 1, -(-stop // refresh))
         packets = _ranged_packets(source.blobs, seg.blob, lay, offsets, r0, r1)
-        frames = codec.decode_runs(lay, packets, r0, baselines(source, seg, r0 * refresh), start)
+        frames = registry.decode_runs(lay, packets, r0, baselines(source, seg, r0 * refresh), start)
     else:
         blob = source.blobs.get(seg.blob)
-        frames = codec.decode_segment(blob, baselines(source, seg, codec.run_start(blob, start)), start)
+        frames = registry.decode_segment(blob, baselines(source, seg, codec.run_start(blob, start)), start)
     return itertools.islice(frames, stop - start)
 
 

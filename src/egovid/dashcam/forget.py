@@ -88,7 +88,9 @@ def trim_segment(archive: Archive, seg: Segment, r0: int, r1: int) -> Segment:
     lay, _ = codec.parse_header(blob)
     parsed = codec.parse(blob)
     (p0, _), (_, p1) = lay.run_packets()[r0], lay.run_packets()[r1 - 1]
-    new = codec.pack(lay.width, lay.height, lay.q, parsed.packets[p0:p1], lay.gop, lay.refresh, lay.starts[r0:r1])
+    new = codec.pack(
+        lay.width, lay.height, lay.q, parsed.packets[p0:p1], lay.gop, lay.refresh, lay.starts[r0:r1], lay.codec
+    )
     k0 = r0 * lay.refresh
     k1 = min(r1 * lay.refresh, seg.frame_end - seg.frame_start)
     params = {**seg.params, "run_offsets": codec.run_offsets(new), "recon_digest": None, "trimmed_from": seg.blob}

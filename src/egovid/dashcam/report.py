@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from egovid.dashcam.archive.catalogue import Catalogue, Drive, Segment, Sequence
 from egovid.dashcam.archive.fleetstore import live_drive, live_drives
 from egovid.dashcam.archive.store import Archive
-from egovid.dashcam.codec import vpx
+from egovid.dashcam.codec import registry
 
 
 @dataclass
@@ -65,7 +65,7 @@ def archive_report(archive: Archive) -> dict:
         "drives": per_drive,
         "paths": [_path_row(cat, pid, p) for pid, p in sorted(per_path.items())],
         "blob_bytes": archive.blobs.total_bytes(),
-        "codec": vpx.self_test(),
+        "codec": registry.describe(),
     }
 
 

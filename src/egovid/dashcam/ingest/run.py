@@ -21,7 +21,7 @@ from egovid.core.engine import EngineConfig, run_tasks
 from egovid.core.errors import EgovidError
 from egovid.dashcam.archive.locks import ORIGIN_KEY, AreaSession, cell_keys
 from egovid.dashcam.archive.store import Archive, ArchiveSpec
-from egovid.dashcam.codec import vpx
+from egovid.dashcam.codec import registry
 from egovid.dashcam.extract import SegmentSnapshot
 from egovid.dashcam.ingest.frames import decode_once
 from egovid.dashcam.ingest.options import IngestOptions
@@ -68,7 +68,7 @@ def ingest_drive(
         raise EgovidError(
             f"a drive named {inp.drive_name!r} is already in the archive", "pass --name to choose another"
         )
-    vpx.self_test()
+    registry.describe()  # every codec backend round-trips, before anything is written
     size = (vp.info.width, vp.info.height)
     clock: dict[str, float] = {}
     with archive.locks.ingest(on_wait=(lambda _k: progress("wait", 0, 1)) if progress else None) as session:

@@ -52,7 +52,7 @@ def _video_start(c: av.container.InputContainer) -> float:
 
 def _unmuxable(path, index: int) -> str | None:
     """Why track ``index`` of ``path`` cannot go into an MP4 (None if it can)."""
-    from egovid.core.video import _muxable
+    from egovid.core.video.passthrough import muxable as _muxable
 
     with av.open(str(path)) as c:
         s = c.streams[index]

@@ -41,9 +41,9 @@ def source_option():
 
 def check_source(source: str) -> None:
     """Refuse an unknown ``--source`` before any work."""
-    from egovid.core.motion.source import SOURCES
+    from egovid.core.motion.source import REQUESTS
 
-    choice(source, "--source", SOURCES)
+    choice(source, "--source", REQUESTS)
 
 
 @app.command("motion")

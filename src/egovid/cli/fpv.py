@@ -212,7 +212,7 @@ def score(
     traj = None
     camera = None
     if video is not None:
-        from egovid.core.camera.intrinsics import resolve_camera
+        from egovid.core.camera.resolve import resolve_camera
 
         camera = resolve_camera(video, focal, hfov)
         intr = camera.intrinsics
@@ -356,7 +356,7 @@ def stabilize_cmd(
         (json_out, JSON, "JSON"),
         *((p, CSV, "motion CSV") for p in pre),
     )
-    from egovid.core.camera.intrinsics import resolve_camera
+    from egovid.core.camera.resolve import resolve_camera
 
     intr = resolve_camera(src, focal, hfov).intrinsics
     traj = read_motion_csv(motion) if motion is not None else None

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from egovid.core.camera.intrinsics import CameraModel, resolve_camera
+from egovid.core.camera.resolve import CameraModel, resolve_camera
 from egovid.core.camera.telemetry import CameraTelemetry, read_camera_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.motion import gyro as gyro_mod

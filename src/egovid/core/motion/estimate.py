@@ -140,11 +140,6 @@ class MotionEstimate:
         """Number of frame pairs whose rotation could not be estimated."""
         return sum(1 for _, _, p in self.pairs if not p.ok)
 
-    @property
-    def bridged_frames(self) -> int:
-        """Number of frames whose step from the previous frame was not measured by its own pair."""
-        return 0 if self.confidence is None else int(np.sum(self.confidence < CONF_MEASURED))
-
 
 def collect_pairs(
     video: str | os.PathLike,
@@ -502,7 +497,7 @@ def estimate_motion(
     ----------
     intrinsics:
         Camera of the full-resolution video (default: :meth:`Intrinsics.default`; see
-        :func:`egovid.core.camera.intrinsics.resolve_camera` for the file's own).
+        :func:`egovid.core.camera.resolve.resolve_camera` for the file's own).
     progress:
         Optional ``progress(frames_done, frames_expected)`` callback.
 

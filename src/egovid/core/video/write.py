@@ -209,11 +209,6 @@ class VideoWriter:
         """The output container, for a caller adding streams of its own (before the first frame)."""
         return self._container
 
-    @property
-    def frames_written(self) -> int:
-        """Number of frames written so far."""
-        return self._count
-
     def _next_pts(self, time: float | None) -> tuple[int, float]:
         if time is None:
             time = self._count / self.fps

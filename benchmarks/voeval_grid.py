@@ -99,7 +99,7 @@ def extrapolate(out: Path, run, r: dict, cfg: GridConfig) -> dict:
         "grid": f"{len(full.vos)} VOs x {len(full.scenes)} scenes x {len(full.levels)} levels, "
         f"{full.frames} frames {full.width}x{full.height}, 1 seed",
         "cells": len(full.vos) * len(full.scenes) * len(full.levels),
-        "sampled_cells": len(run.cells),
+        "sampled_cells": r["cells"],
         "render_seconds_per_scene": render,
         "render_seconds_full": render_s,
         "ladder_seconds_per_scene_sampled": stages_per_task,
@@ -114,11 +114,12 @@ def extrapolate(out: Path, run, r: dict, cfg: GridConfig) -> dict:
 def summary(out: Path, seconds: float, r: dict, mode: str, cfg: GridConfig) -> dict:
     run = load_results(out)
     per_vo, status = defaultdict(list), defaultdict(lambda: defaultdict(int))
-    per_scene, per_cell = defaultdict(list), defaultdict(list)
+    per_scene, per_cell, per_cpu = defaultdict(list), defaultdict(list), defaultdict(list)
     for (vo, scene, lv, _s), c in run.cells.items():
         if is_floor(vo) and lv != "lossless":
             continue
         per_vo[vo].append(c["seconds"])
+        per_cpu[vo].append(c.get("cpu_seconds", float("nan")))
         per_cell[vo].append(c.get("cell_seconds", c["seconds"]))
         per_scene[scene].append(c.get("cell_seconds", c["seconds"]))
         status[vo][c["status"]] += 1
@@ -138,6 +139,9 @@ def summary(out: Path, seconds: float, r: dict, mode: str, cfg: GridConfig) -> d
             v: {"mean": float(np.mean(t)), "max": float(np.max(t)), "n": len(t)} for v, t in per_cell.items()
         },
         "cell_seconds_per_scene": {s: float(np.mean(t)) for s, t in per_scene.items()},
+        # CPU seconds of the odometer itself (its process and the processes it started): unlike the
+        # wall times above, not inflated when other work shares the machine.
+        "vo_cpu_seconds_per_cell": {v: float(np.mean(t)) for v, t in per_cpu.items()},
         "status": {v: dict(s) for v, s in status.items()},
         "full_grid_estimate": extrapolate(out, run, r, cfg),
         "report": str(out / "report.html"),

@@ -29,7 +29,9 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import resource
 import shlex
+import signal
 import subprocess
 import sys
 import time
@@ -81,6 +83,7 @@ class VOResult:
     valid: np.ndarray
     status: str = "ok"  # ok | lost-tracking | failed | timeout
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
     t: np.ndarray | None = None
     diagnosis: Diagnosis = field(default_factory=Diagnosis)
     extra: dict = field(default_factory=dict)
@@ -99,6 +102,17 @@ def output_tail(*texts: str | bytes | None, lines: int = LOG_LINES) -> list[str]
             text = text.decode("utf-8", errors="replace")
         out += [ln.rstrip() for ln in (text or "").splitlines() if ln.strip()]
     return [ln[:300] for ln in out[-lines:]]
+
+
+def exit_reason(what: str, returncode: int) -> str:
+    """How a process ended: "exited with status N", or the signal that killed it (a crash)."""
+    if returncode < 0:
+        try:
+            name = signal.Signals(-returncode).name
+        except ValueError:
+            name = f"signal {-returncode}"
+        return f"{what} was killed by {name}"
+    return f"{what} exited with status {returncode}"
 
 
 def finalize(
@@ -382,7 +396,7 @@ class WorkerVO(VisualOdometer):
             return lost_result(count_frames(video), "timeout", why)
         tail = output_tail(r.stderr, r.stdout)
         if r.returncode != 0 or not out.exists():
-            why = f"the {self.name} worker exited with status {r.returncode}" + ("" if out.exists() else ", no output")
+            why = exit_reason(f"the {self.name} worker", r.returncode) + ("" if out.exists() else ", no output")
             return lost_result(count_frames(video), "failed", Diagnosis(why, r.returncode, False, tail))
         got = json.loads(out.read_text())
         n = int(got["frames"]) if self.reads_video else count_frames(video)
@@ -513,7 +527,7 @@ class CommandVO(VisualOdometer):
             return lost_result(n, "timeout", why)
         tail = output_tail(r.stderr, r.stdout)
         if r.returncode != 0 or not out.exists():
-            why = f"the command exited with status {r.returncode}" + ("" if out.exists() else f", no {out.name}")
+            why = exit_reason("the command", r.returncode) + ("" if out.exists() else f", no {out.name}")
             return lost_result(n, "failed", Diagnosis(why, r.returncode, False, tail))
         try:
             traj = read_trajectory(out)
@@ -560,15 +574,24 @@ def _match_rows(
     return out, out_t, valid
 
 
+def _cpu_seconds() -> float:
+    """CPU seconds used so far by this process and the child processes it has waited for."""
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + kids.ru_utime + kids.ru_stime
+
+
 def timed_run(vo: VisualOdometer, video: Path, intr: Intrinsics, workdir: Path, dataset: str = "synthetic") -> VOResult:
-    """Run a VO, turning any exception into a ``failed`` result (its type and message the reason)."""
+    """Run a VO, turning any exception into a ``failed`` result (its type and message the reason).
+    Sets ``seconds`` (wall) and ``cpu_seconds`` (this process and the odometer's own processes: a
+    figure that does not depend on what else runs on the machine)."""
     workdir.mkdir(parents=True, exist_ok=True)
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), _cpu_seconds()
     try:
         res = vo.run(video, intr, workdir, dataset)
     except Exception as exc:
         res = lost_result(count_frames(video), "failed", Diagnosis(f"{type(exc).__name__}: {exc}"[:300]))
     res.seconds = time.perf_counter() - t
+    res.cpu_seconds = _cpu_seconds() - cpu
     return res
 
 

@@ -141,6 +141,7 @@ def score(job: CellJob, truth: SceneTruth, res: VOResult) -> tuple[dict, np.ndar
         "seed": job.seed,
         "status": res.status,
         "seconds": res.seconds,
+        "cpu_seconds": res.cpu_seconds,
         "frames": n,
         "tracked": int(valid.sum()),
         "tracked_share": float(valid.mean()) if n else 0.0,

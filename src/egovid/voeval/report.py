@@ -125,6 +125,12 @@ def _odometer_section(run: RunResults) -> list[str]:
 
 
 def _recommendation_section(rows: list, n_seeds: int) -> list[str]:
+    if not rows:
+        return [
+            "## Which VO for my application and factor (§22.1.3)",
+            "",
+            "No row: the run has no real sequence and no complete factor pair (both scenes of a factor, lossless).",
+        ]
     md = [
         "## Which VO for my application and factor (§22.1.3)",
         "",
@@ -302,6 +308,8 @@ def _limits_section(limits: list) -> list[str]:
 def _left_out_section(m: dict) -> list[str]:
     lo = m["left_out"]
     md = ["", "## Factor matrices", ""]
+    if not m["factors"]:
+        return [*md, "The run has no factor pair (both scenes of a factor): no factor matrix."]
     if not lo:
         return [*md, "Every factor pair of every odometer ran; nothing was left out of the matrices (figures below)."]
     md += [

@@ -33,16 +33,16 @@ import argparse
 import json
 import os
 import shutil
-import time
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
 from egovid.core.engine import EngineConfig, spawn_cluster
+from egovid.voeval.floors import FLOORS, is_floor
 from egovid.voeval.layout import LEVELS
-from egovid.voeval.report import write_report
-from egovid.voeval.runner import GridConfig, load_results, run_grid
+from egovid.voeval.results import load_results
+from egovid.voeval.runner import GridConfig, evaluate
 
 from _common import cache_dir, report
 
@@ -59,14 +59,16 @@ def extrapolate(out: Path, run, r: dict, cfg: GridConfig) -> dict:
     full = GridConfig()
     by = defaultdict(list)
     for (vo, scene, lv, _s), c in run.cells.items():
+        if is_floor(vo) and lv != "lossless":  # a floor is scored once per scene (read back at every level)
+            continue
         t = c.get("cell_seconds", c["seconds"])
         by[(vo, _family(scene), lv)].append(t)
         by[(vo, _family(scene))].append(t)
     missing = [v for v in full.vos if not any(k[0] == v for k in by)]
     cell_s, longest = 0.0, 0.0
-    for vo in full.vos:
+    for vo in [*full.vos, *FLOORS]:
         for scene in full.scenes:
-            for lv in full.levels:
+            for lv in ["lossless"] if is_floor(vo) else full.levels:
                 ts = by.get((vo, _family(scene), lv)) or by.get((vo, _family(scene))) or []
                 if ts:
                     cell_s += float(np.mean(ts))
@@ -97,7 +99,7 @@ def extrapolate(out: Path, run, r: dict, cfg: GridConfig) -> dict:
         "grid": f"{len(full.vos)} VOs x {len(full.scenes)} scenes x {len(full.levels)} levels, "
         f"{full.frames} frames {full.width}x{full.height}, 1 seed",
         "cells": len(full.vos) * len(full.scenes) * len(full.levels),
-        "sampled_cells": len(run.cells),
+        "sampled_cells": r["cells"],
         "render_seconds_per_scene": render,
         "render_seconds_full": render_s,
         "ladder_seconds_per_scene_sampled": stages_per_task,
@@ -112,15 +114,18 @@ def extrapolate(out: Path, run, r: dict, cfg: GridConfig) -> dict:
 def summary(out: Path, seconds: float, r: dict, mode: str, cfg: GridConfig) -> dict:
     run = load_results(out)
     per_vo, status = defaultdict(list), defaultdict(lambda: defaultdict(int))
-    per_scene, per_cell = defaultdict(list), defaultdict(list)
-    for (vo, scene, _lv, _s), c in run.cells.items():
+    per_scene, per_cell, per_cpu = defaultdict(list), defaultdict(list), defaultdict(list)
+    for (vo, scene, lv, _s), c in run.cells.items():
+        if is_floor(vo) and lv != "lossless":
+            continue
         per_vo[vo].append(c["seconds"])
+        per_cpu[vo].append(c.get("cpu_seconds", float("nan")))
         per_cell[vo].append(c.get("cell_seconds", c["seconds"]))
         per_scene[scene].append(c.get("cell_seconds", c["seconds"]))
         status[vo][c["status"]] += 1
     return {
         "mode": mode,
-        "cells": len(run.cells),
+        "cells": r["cells"],
         "computed": r["computed"],
         "stage_minutes": {k: v / 60 for k, v in r["stages"].items()},
         "total_minutes": seconds / 60,
@@ -134,6 +139,9 @@ def summary(out: Path, seconds: float, r: dict, mode: str, cfg: GridConfig) -> d
             v: {"mean": float(np.mean(t)), "max": float(np.max(t)), "n": len(t)} for v, t in per_cell.items()
         },
         "cell_seconds_per_scene": {s: float(np.mean(t)) for s, t in per_scene.items()},
+        # CPU seconds of the odometer itself (its process and the processes it started): unlike the
+        # wall times above, not inflated when other work shares the machine.
+        "vo_cpu_seconds_per_cell": {v: float(np.mean(t)) for v, t in per_cpu.items()},
         "status": {v: dict(s) for v, s in status.items()},
         "full_grid_estimate": extrapolate(out, run, r, cfg),
         "report": str(out / "report.html"),
@@ -162,11 +170,8 @@ def main() -> None:
         if not a.resume:
             shutil.rmtree(out, ignore_errors=True)
             out.mkdir(parents=True)
-        t = time.perf_counter()
-        r = run_grid(out, cfg, EngineConfig(workers=2))
-        total = time.perf_counter() - t
-        write_report(out)
-        report("voeval_grid", summary(out, total, r, "local: LocalCluster, 2 worker processes", cfg))
+        r = evaluate(out, cfg, EngineConfig(workers=2))
+        report("voeval_grid", summary(out, r["seconds"], r, "local: LocalCluster, 2 worker processes", cfg))
     if a.mode in ("cluster", "both"):
         cl = cache_dir("voeval-cluster")
         if not a.resume:
@@ -176,11 +181,8 @@ def main() -> None:
             for sub in ("scenes", "videos"):
                 shutil.copytree(out / sub, cl / sub, dirs_exist_ok=True)
         with spawn_cluster(cl / "dask", workers=WORKERS) as address:
-            t = time.perf_counter()
-            r = run_grid(cl, cfg, EngineConfig(scheduler=address))
-            total = time.perf_counter() - t
-        write_report(cl)
-        report("voeval_grid", summary(cl, total, r, f"cluster: dask scheduler + 2 workers at {address}", cfg))
+            r = evaluate(cl, cfg, EngineConfig(scheduler=address))
+        report("voeval_grid", summary(cl, r["seconds"], r, f"cluster: dask scheduler + 2 workers at {address}", cfg))
 
 
 if __name__ == "__main__":

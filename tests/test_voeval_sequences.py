@@ -76,35 +76,47 @@ def write_tum_dataset(root: Path, frames, R, intr) -> Path:
     return seq
 
 
-def write_euroc_dataset(root: Path, frames, R, intr) -> Path:
-    seq = root / "MH_99_synthetic"
+T_BS = np.eye(4)
+T_BS[:3, :3] = R_BC
+T_BS[:3, 3] = (-0.02, 0.07, 0.0)  # the camera sits off the body's centre
+
+
+def write_euroc_dataset(
+    root: Path, frames, R, intr, *, name: str = "MH_99_synthetic", fps: float = FPS, centres=None
+) -> Path:
+    """A EuRoC MAV sequence of ``frames`` (BGR, written grey) with camera-to-world rotations ``R``
+    (relative to frame 0) and camera centres ``centres`` (None: the body stays at one point)."""
+    seq = root / name
     cam = seq / "mav0" / "cam0"
     (cam / "data").mkdir(parents=True)
-    times_ns = (1403636579763555584 + np.arange(N) * int(1e9 / FPS)).astype(np.int64)
+    n = len(frames)
+    times_ns = (1403636579763555584 + np.arange(n) * int(1e9 / fps)).astype(np.int64)
     rows = []
     for t, img in zip(times_ns, frames, strict=True):
         cv2.imwrite(str(cam / "data" / f"{t}.png"), cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
         rows.append(f"{t},{t}.png")
     (cam / "data.csv").write_text("#timestamp [ns],filename\n" + "\n".join(rows) + "\n")
-    T_BS = np.eye(4)
-    T_BS[:3, :3] = R_BC
-    T_BS[:3, 3] = (-0.02, 0.07, 0.0)
     (cam / "sensor.yaml").write_text(
         "%YAML:1.0\nsensor_type: camera\ncomment: synthetic\nT_BS:\n  cols: 4\n  rows: 4\n  data: ["
         + ", ".join(f"{v:.12f}" for v in T_BS.ravel())
-        + f"]\nrate_hz: {FPS}\nresolution: [{W}, {H}]\ncamera_model: pinhole\n"
+        + f"]\nrate_hz: {fps}\nresolution: [{frames[0].shape[1]}, {frames[0].shape[0]}]\ncamera_model: pinhole\n"
         f"intrinsics: [{intr.fx}, {intr.fy}, {intr.cx}, {intr.cy}]\ndistortion_model: radial-tangential\n"
         "distortion_coefficients: [0.0, 0.0, 0.0, 0.0]\n"
     )
     t_cam = times_ns * 1e-9
     t_ref, R_WC = _fine_reference(WORLD @ R, t_cam, per_frame=5)
     R_WB = R_WC @ R_BC.T  # body orientation: the reference is of the body (IMU), not the camera
+    if centres is None:
+        p_WB = np.tile([1.0, 2.0, 0.5], (len(t_ref), 1))
+    else:  # the body's centre: the camera's, less its offset on the body
+        c = np.stack([np.interp(t_ref, t_cam, (centres @ WORLD.T)[:, k]) for k in range(3)], axis=1)
+        p_WB = c - R_WB @ T_BS[:3, 3]
     q = _q_xyzw(R_WB)
     gt = seq / "mav0" / "state_groundtruth_estimate0"
     gt.mkdir(parents=True)
     lines = [
-        f"{round(t * 1e9)},1.0,2.0,0.5,{w:.12f},{x:.12f},{y:.12f},{z:.12f}" + ",0.0" * 9
-        for t, (x, y, z, w) in zip(t_ref, q, strict=True)
+        f"{round(t * 1e9)},{p[0]:.12f},{p[1]:.12f},{p[2]:.12f},{w:.12f},{x:.12f},{y:.12f},{z:.12f}" + ",0.0" * 9
+        for t, p, (x, y, z, w) in zip(t_ref, p_WB, q, strict=True)
     ]
     (gt / "data.csv").write_text(
         "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], ...\n"
@@ -195,6 +207,15 @@ def test_tum_euroc_kitti_and_frames_read_back_exactly_and_truth_scores_zero(tmp_
         # timestamps undone (independent truth: the rotations the frames were rendered with).
         assert np.max(angle_deg(np.swapaxes(ref.R, 1, 2) @ R)) < 1e-4, fmt
         np.testing.assert_allclose(ref.times, np.arange(N) / FPS, atol=1e-6)
+        # Positions, in the first camera's axes: KITTI's 0.8 m per frame along z; EuRoC's body stays
+        # put, so its camera moves only by turning around the body (T_BS undone); TUM's and the
+        # frame folder's reference never move (no positions).
+        expected = {"kitti": np.outer(np.arange(N), [0, 0, 0.8])}
+        p = WORLD @ R @ R_BC.T @ T_BS[:3, 3]  # camera centre = body centre + R_WB t_BS
+        expected["euroc"] = (p - p[0]) @ (WORLD @ R[0])
+        assert meta["has_translation"] == (fmt in expected), fmt
+        if fmt in expected:
+            np.testing.assert_allclose(ref.t, expected[fmt], atol=1e-6)
         for scene in (name, f"{name}+blur", f"{name}+illumination"):
             for level in ("lossless", "crf36"):
                 c = json.loads((out / "results" / "truth" / "s0" / f"{scene}__{level}.json").read_text())
@@ -246,3 +267,34 @@ def test_sequence_names_follow_folders_and_stay_unique(tmp_path):
         (tmp_path / n).mkdir(parents=True)
     specs = parse_specs([f"tum:{tmp_path / 'a/seq'}", f"kitti:{tmp_path / 'b/seq'}"])
     assert [s.name for s in specs] == ["seq", "seq-2"]
+
+
+def test_orbslam3_on_short_slow_euroc_sequences_initialises_or_says_why(tmp_path):
+    """Two 40-frame EuRoC sequences (ORB-SLAM3 gets its EuRoC settings): a slow orbit it initialises
+    on, and one that barely moves (parallax below a degree), where the cell fails and says why."""
+    from egovid.core.camera.intrinsics import Intrinsics
+    from egovid.voeval.adapters import ODOMETERS
+    from egovid.voeval.scenes import LEARNED, mosaic, orbit_pose, relative_to_first, render_orbit
+
+    if ODOMETERS["orbslam3"].missing():
+        pytest.skip("pyorbslam3 installs only on x86-64 Linux")
+    intr, picture, n = Intrinsics.from_hfov(376, 240, 70.0), mosaic(LEARNED), 40
+    args = ["voeval", "run", "--out", tmp_path / "run", "--no-synthetic", "--vo", "orbslam3", "--levels", "lossless"]
+    args += ["--real-factors", "", "--workers", "2"]
+    for name, turn in (("V9_01_slow", 0.08), ("V9_02_still", 0.004)):  # share of a full orbit over the clip
+        poses = [orbit_pose(k, 0.25, 1.0, 2 * np.pi * turn / n) for k in range(n)]
+        frames = [render_orbit(picture, intr, c, Rk) for c, Rk in poses]
+        R, t = relative_to_first(np.stack([p[1] for p in poses]), np.stack([p[0] for p in poses]))
+        seq = write_euroc_dataset(tmp_path, frames, R, intr, name=name, fps=20.0, centres=t)
+        args += ["--sequence", f"euroc:{seq}"]
+    r = run_cli(*args)
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "run" / "results" / "orbslam3" / "s0"
+    slow, still = (json.loads((out / f"{s}__lossless.json").read_text()) for s in ("V9_01_slow", "V9_02_still"))
+    assert slow["orb"]["from"] == "ORB-SLAM3 EuRoC.yaml"
+    assert slow["tracked"] >= 20 and "initialised at frame" in slow["reason"], slow["reason"]
+    assert still["outcome"] == "failed" and "never initialised" in still["reason"]
+    assert "moves" in still["diagnosis"]["reference_motion"] and "parallax" in still["diagnosis"]["reference_motion"]
+    report = (tmp_path / "run" / "report.md").read_text()
+    assert "| V9_02_still | as recorded | none ran | none ran | none ran | orbslam3 (failed, 0 % tracked) |" in report
+    assert "ORB-SLAM3 never initialised" in report and "parallax" in report

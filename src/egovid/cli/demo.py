@@ -31,8 +31,7 @@ def demo(
     _dashcam(out / "dashcam", quick)
 
     console.rule("[bold]voeval: which visual odometer for which job (egovid voeval)")
-    from egovid.voeval.report import write_report as voeval_report
-    from egovid.voeval.runner import GridConfig, run_grid
+    from egovid.voeval.runner import GridConfig, evaluate
 
     cfg = GridConfig(
         vos=["egovid", "ecc", "monovo"],
@@ -41,9 +40,8 @@ def demo(
         height=120 if quick else 180,
         levels=["lossless", "crf30", "crf48"],
     )
-    r = run_grid(out / "voeval", cfg)
-    html_path, _ = voeval_report(out / "voeval")
-    console.print(f"{r['cells']} cells in {r['seconds']:.0f} s; report {html_path}")
+    r = evaluate(out / "voeval", cfg)
+    console.print(f"{r['cells']} cells in {r['seconds']:.0f} s; report {r['report'][0]}")
 
     console.rule("[bold]results")
     console.print(f"All outputs are in {out.resolve()}:")

@@ -70,49 +70,43 @@ def run(
     workers: int = typer.Option(
         2, min=1, max=512, help="Local worker processes without a scheduler (1: in this process)."
     ),
+    vo_timeout: float = typer.Option(
+        600.0, min=1.0, help="Seconds an odometer may run on one video in its own process (then: timed out)."
+    ),
     report: bool = typer.Option(True, help="Write the report when done."),
 ) -> None:
     """Make the test videos (synthetic scenes, real sequences and their degraded copies, the H.264
     ladder), run every odometer on every video (finished cells are kept: re-running resumes), and
-    score pose error, OITF and RITF."""
+    score pose error, OITF, RITF, ATE and RPE, beside the floors (stationary, constant velocity)."""
     from egovid.cli.common import parse_ints, parse_size
     from egovid.cli.validate import output_folder
     from egovid.core.engine import EngineConfig, scheduler_address
-    from egovid.voeval.runner import (
-        DEFAULT_FRAMES,
-        DEFAULT_SIZE,
-        QUICK_FRAMES,
-        QUICK_SIZE,
-        GridConfig,
-        default_vos,
-        run_grid,
-    )
-    from egovid.voeval.scenes import SCENES
+    from egovid.voeval.runner import DEFAULT_FRAMES, DEFAULT_SIZE, QUICK_FRAMES, QUICK_SIZE, GridConfig, evaluate
 
     output_folder(out, inputs=[Path(x.partition(":")[2]) for x in sequence], what="run folder")
     w, h = parse_size(size) if size else (QUICK_SIZE if quick else DEFAULT_SIZE)
     cfg = GridConfig(
-        vos=_names(vo) if vo is not None else default_vos(),
         commands=list(vo_cmd),
         frames=frames or (QUICK_FRAMES if quick else DEFAULT_FRAMES),
         width=w,
         height=h,
         levels=_names(levels),
-        scenes=(_names(scenes) if scenes is not None else list(SCENES)) if synthetic else [],
         sequences=list(sequence),
         real_factors=_names(real_factors),
         seeds=list(parse_ints(seeds, "--seeds")),
         anchor=anchor.strip().lower(),
+        timeout=vo_timeout,
     )
+    if vo is not None:
+        cfg.vos = _names(vo)
+    if scenes is not None or not synthetic:
+        cfg.scenes = _names(scenes or "") if synthetic else []
     engine = EngineConfig(scheduler=scheduler_address(scheduler), workers=workers)
     with staged_progress() as cb:
-        r = run_grid(out, cfg, engine, progress=cb)
+        r = evaluate(out, cfg, engine, progress=cb, report=report)
     console.print(f"{r['cells']} cells ({r['computed']} computed now) in {r['seconds']:.0f} s → {out}/results")
-    if report:
-        from egovid.voeval.report import write_report
-
-        h_, m_ = write_report(out)
-        console.print(f"report {h_}\n       {m_}")
+    if r["report"]:
+        console.print(f"report {r['report'][0]}\n       {r['report'][1]}")
 
 
 def _names(text: str) -> list[str]:
@@ -127,13 +121,10 @@ def report_cmd(
         help="Factor normalisation: 'thesis' (eq. 22.2-22.4 as written) or 'max_abs' (|OITF-RITF| and max|E|).",
     ),
 ) -> None:
-    """Factor matrices, rotation plots and the "which VO for my application and factor" table
-    (HTML + Markdown + matrices.json)."""
-    from egovid.core.errors import EgovidError
-    from egovid.voeval.matrices import NORMS
+    """Factor matrices, rotation plots, the "which VO for my application and factor" table, the
+    cells that did not run and why, ATE / RPE and the compression each odometer takes (HTML +
+    Markdown + matrices.json)."""
     from egovid.voeval.report import write_report
 
-    if norm not in NORMS:
-        raise EgovidError(f"unknown normalisation {norm!r}", f"use one of {', '.join(NORMS)}")
     h_, m_ = write_report(run_dir, norm=norm)
     console.print(f"report {h_}\n       {m_}")

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 from scipy.spatial.transform import Rotation
 
 from egovid.core.errors import EgovidError
@@ -67,7 +68,8 @@ class RawSequence:
 
     ``images`` (N,) image files in time order; ``image_times`` (N,) seconds; ``ref_times`` (M,)
     seconds on the same clock; ``ref_rot`` (M, 3, 3) camera-to-world rotations of the camera that
-    took the images (OpenCV optical axes).
+    took the images (OpenCV optical axes); ``ref_pos`` (M, 3) its optical centre in the world
+    (metres), None where the dataset has no positions.
     """
 
     name: str
@@ -78,6 +80,7 @@ class RawSequence:
     ref_times: np.ndarray
     ref_rot: np.ndarray
     camera: Camera
+    ref_pos: np.ndarray | None = None
 
 
 def _need(path: Path, what: str, fix: str) -> Path:
@@ -121,11 +124,12 @@ def _quat_rotations(path: Path, q_xyzw: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q_xyzw / norms[:, None]).as_matrix()
 
 
-def read_tum_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(times (M,) s, camera-to-world rotations (M, 3, 3)) of a TUM ``time tx ty tz qx qy qz qw`` file."""
+def read_tum_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times (M,) s, camera-to-world rotations (M, 3, 3), positions (M, 3)) of a TUM
+    ``time tx ty tz qx qy qz qw`` file."""
     rows = _table(path, 8, "TUM trajectory (time tx ty tz qx qy qz qw)")
     arr = _floats(path, rows, slice(0, 8), "TUM trajectory")
-    return arr[:, 0], _quat_rotations(path, arr[:, 4:8])
+    return arr[:, 0], _quat_rotations(path, arr[:, 4:8]), arr[:, 1:4]
 
 
 def read_camera_file(path: Path) -> Camera:
@@ -171,7 +175,9 @@ def read_tum(folder: Path) -> RawSequence:
     missing = [p for p in images if not p.exists()]
     if missing:
         raise EgovidError(f"{len(missing)} images of {folder / 'rgb.txt'} are missing (first: {missing[0]})", fix)
-    ref_t, ref_rot = read_tum_trajectory(_need(folder / "groundtruth.txt", "TUM ground truth groundtruth.txt", fix))
+    ref_t, ref_rot, ref_pos = read_tum_trajectory(
+        _need(folder / "groundtruth.txt", "TUM ground truth groundtruth.txt", fix)
+    )
     if (folder / "camera.txt").exists():
         cam = read_camera_file(folder / "camera.txt")
     else:
@@ -183,12 +189,10 @@ def read_tum(folder: Path) -> RawSequence:
             )
         v = TUM_CAMERAS[f"freiburg{match.group(1)}"]
         cam = Camera(*v[:4], distortion=tuple(v[4:]) if any(v[4:]) else None)
-    return RawSequence(folder.resolve().name, "tum", folder, images, times, ref_t, ref_rot, cam)
+    return RawSequence(folder.resolve().name, "tum", folder, images, times, ref_t, ref_rot, cam, ref_pos)
 
 
 def _euroc_yaml(path: Path) -> dict:
-    import yaml
-
     text = "\n".join(ln for ln in path.read_text(encoding="utf-8").splitlines() if not ln.startswith("%YAML"))
     try:
         data = yaml.safe_load(text)
@@ -229,6 +233,7 @@ def read_euroc(folder: Path) -> RawSequence:
     arr = _floats(gt_file, gt, slice(0, 8), "EuRoC ground truth")
     R_WB = _quat_rotations(gt_file, arr[:, [5, 6, 7, 4]])  # file order w x y z
     R_BC = project_to_so3(T_BS[:3, :3])  # camera -> body
+    p_WC = arr[:, 1:4] + R_WB @ T_BS[:3, 3]  # the camera's centre: body position + its offset on the body
     return RawSequence(
         folder.resolve().name,
         "euroc",
@@ -238,6 +243,7 @@ def read_euroc(folder: Path) -> RawSequence:
         arr[:, 0] * 1e-9,
         R_WB @ R_BC,
         Camera(fu, fv, cu, cv, dist),
+        p_WC,
     )
 
 
@@ -273,7 +279,7 @@ def read_kitti(folder: Path) -> RawSequence:
         raise EgovidError(f"{pose_file} has {len(M)} poses for {len(times)} images", "give the sequence's own poses")
     name = folder.resolve().name
     cam = Camera(P0[0, 0], P0[1, 1], P0[0, 2], P0[1, 2])
-    return RawSequence(name, "kitti", folder, images, times, times.copy(), project_to_so3(M[:, :, :3]), cam)
+    return RawSequence(name, "kitti", folder, images, times, times.copy(), project_to_so3(M[:, :, :3]), cam, M[:, :, 3])
 
 
 def read_frames(folder: Path) -> RawSequence:
@@ -307,9 +313,9 @@ def read_frames(folder: Path) -> RawSequence:
                 "add times.txt with one time in seconds per image (sorted by file name)",
             )
         times = np.array(stamps, dtype=float)
-    ref_t, ref_rot = read_tum_trajectory(traj)
+    ref_t, ref_rot, ref_pos = read_tum_trajectory(traj)
     cam = read_camera_file(_need(folder / "camera.txt", "camera file camera.txt", fix))
-    return RawSequence(folder.resolve().name, "frames", folder, images, times, ref_t, ref_rot, cam)
+    return RawSequence(folder.resolve().name, "frames", folder, images, times, ref_t, ref_rot, cam, ref_pos)
 
 
 READERS = {"tum": read_tum, "euroc": read_euroc, "kitti": read_kitti, "frames": read_frames}

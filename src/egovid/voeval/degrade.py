@@ -24,14 +24,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from egovid.core.errors import EgovidError
 from egovid.core.rotations import so3_exp, so3_log
 from egovid.core.video import iter_frames
 from egovid.synth import effects
 from egovid.voeval.scenes import SceneTruth, lossless_writer
-
-REAL_FACTORS = ("noise", "blur", "illumination")
-#: Which thesis factor each real-frame factor stands for.
-THESIS_FACTOR = {"noise": "sensor", "blur": "motion", "illumination": "sensor"}
 
 
 def rotation_blur(image: np.ndarray, K: np.ndarray, Q: np.ndarray, *, exposure: float = 0.5, samples: int = 5):
@@ -53,28 +50,36 @@ def illumination_gain(t: np.ndarray, phase: float, *, level: float = 0.35, hunt:
     return level * (1.0 + hunt * np.sin(2 * math.pi * np.asarray(t) / period + phase))
 
 
+def _noise(img, k, ctx):
+    return effects.sensor(img, ctx["rng"], noise=8.0, vignetting=0.0, exposure=1.0)
+
+
+def _blur(img, k, ctx):
+    R = ctx["R"]
+    a, b = (k, k + 1) if k + 1 < len(R) else (k - 1, k)
+    return rotation_blur(img, ctx["K"], R[a].T @ R[b])
+
+
+def _illumination(img, k, ctx):
+    g = float(illumination_gain(np.array([ctx["time"]]), ctx["phase"])[0])
+    return np.clip(img.astype(np.float32) * g + 0.5, 0, 255).astype(np.uint8)
+
+
+#: What each real-frame factor does to frame k (image, index, context).
+DEGRADE = {"noise": _noise, "blur": _blur, "illumination": _illumination}
+REAL_FACTORS = tuple(DEGRADE)
+
+
 def degrade_scene(src: Path, truth: SceneTruth, factor: str, seed: int, dst: Path) -> SceneTruth:
     """Write ``dst`` (lossless): the frames of ``src`` with one image-level ``factor``; same truth."""
+    if factor not in DEGRADE:
+        raise EgovidError(f"unknown real-frame factor {factor!r}", f"choose from {', '.join(REAL_FACTORS)}")
     rng = np.random.default_rng([seed, 7])
-    phase = float(rng.uniform(0, 2 * math.pi))
-    K = truth.intrinsics.K
-    R = truth.R
+    ctx = {"rng": rng, "phase": float(rng.uniform(0, 2 * math.pi)), "K": truth.intrinsics.K, "R": truth.R}
     with lossless_writer(dst, truth.intrinsics.width, truth.intrinsics.height, truth.fps) as wr:
         for f in iter_frames(src):
-            k = f.index
-            img = f.image
-            if factor == "noise":
-                img = effects.sensor(img, rng, noise=8.0, vignetting=0.0, exposure=1.0)
-            elif factor == "blur":
-                a, b = (k, k + 1) if k + 1 < len(R) else (k - 1, k)
-                img = rotation_blur(img, K, R[a].T @ R[b])
-            elif factor == "illumination":
-                g = float(illumination_gain(np.array([f.time]), phase)[0])
-                img = np.clip(img.astype(np.float32) * g + 0.5, 0, 255).astype(np.uint8)
-            else:
-                from egovid.core.errors import EgovidError
-
-                raise EgovidError(f"unknown real-frame factor {factor!r}", f"choose from {', '.join(REAL_FACTORS)}")
-            wr.write(img, float(truth.times[k]) if k < len(truth.times) else f.time)
+            ctx["time"] = f.time
+            img = DEGRADE[factor](f.image, f.index, ctx)
+            wr.write(img, float(truth.times[f.index]) if f.index < len(truth.times) else f.time)
     meta = {**truth.meta, "kind": "derived", "base": truth.name, "factor": factor, "seed": seed}
-    return SceneTruth(f"{truth.name}+{factor}", truth.R, truth.intrinsics, truth.fps, truth.times, meta)
+    return SceneTruth(f"{truth.name}+{factor}", truth.R, truth.intrinsics, truth.fps, truth.times, meta, truth.t)

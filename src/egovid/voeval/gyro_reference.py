@@ -26,8 +26,12 @@ from pathlib import Path
 import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.camera.telemetry import read_camera_telemetry
 from egovid.core.errors import EgovidError
-from egovid.core.video import iter_frames
+from egovid.core.motion import gyro as gyro_mod
+from egovid.core.motion.source import CameraMotion, camera_motion
+from egovid.core.trajectory import Trajectory
+from egovid.core.video import iter_frames, probe
 from egovid.voeval.scenes import SceneTruth, lossless_writer
 
 #: Motion sources whose trajectory is a camera's own sensor (not vision).
@@ -63,9 +67,6 @@ def still_bias(times: np.ndarray, gyro: np.ndarray) -> tuple[np.ndarray, float]:
 
 def check_gyro_video(path: Path) -> None:
     """Raise :class:`EgovidError` unless ``path`` is a video with an embedded gyro."""
-    from egovid.core.camera.telemetry import read_camera_telemetry
-    from egovid.core.video import probe
-
     probe(path)
     if not read_camera_telemetry(path).has_gyro:
         raise EgovidError(
@@ -77,10 +78,9 @@ def check_gyro_video(path: Path) -> None:
 def import_gyro_sequence(spec, video: Path, max_frames: int | None = None) -> SceneTruth:
     """Store the first ``max_frames`` frames of the video of ``spec`` (a :class:`SequenceSpec`
     of format ``gyro``) as a lossless video at ``video``; return their reference (the synced,
-    integrated gyro, frame 0 = identity) with the fitted camera. Raises :class:`EgovidError`
-    when the gyro does not match the picture (sync correlation below the trusted level)."""
-    from egovid.core.motion.source import camera_motion
-
+    integrated gyro, frame 0 = identity; no positions) with the fitted camera. Raises
+    :class:`EgovidError` when the gyro does not match the picture (sync correlation below the
+    trusted level)."""
     motion = camera_motion(spec.path, "auto")
     if motion.source not in _SENSOR_SOURCES:
         raise EgovidError(
@@ -88,39 +88,55 @@ def import_gyro_sequence(spec, video: Path, max_frames: int | None = None) -> Sc
             "use a video whose gyro describes the picture (no electronic stabilisation, or one that records "
             "the image orientation), or another --sequence format",
         )
-    traj = motion.trajectory
-    bias_meta = {}
-    if motion.source == "gyro":  # the gyro again, with the bias of its still parts, not vision's
-        from egovid.core.motion import gyro as gyro_mod
-        from egovid.core.trajectory import Trajectory
-
-        imu = motion.telemetry.imu
-        bias, still_s = still_bias(imu.times, imu.gyro)
-        track = gyro_mod.integrate(imu, bias=bias)
-        traj = Trajectory(traj.times, gyro_mod.frame_rotations(track, motion.sync, traj.times))
-        bias_meta = {
-            "reference_bias": {
-                "from": "still parts" if still_s >= MIN_STILL_S else "none (the camera never rests)",
-                "deg_s": np.degrees(bias).round(4).tolist(),
-                "still_seconds": round(still_s, 2),
-                "vision_fitted_deg_s": np.degrees(motion.sync.bias).round(4).tolist(),
-            }
-        }
+    traj, bias_meta = _reference(motion)
     n = len(traj) if max_frames is None else min(len(traj), max_frames)
     intr = motion.camera.intrinsics
     w, h = intr.width - intr.width % 2, intr.height - intr.height % 2
     times = np.asarray(traj.times[:n], float) - float(traj.times[0])
     fps = 1.0 / float(np.median(np.diff(times)))
-    written = 0
+    _store_frames(spec.path, video, times, w, h, fps)
+    R = traj.R[:n]
+    R = np.swapaxes(R[0], -1, -2)[None] @ R
+    meta = {**_meta(spec, motion, traj, n), **bias_meta}
+    scene_intr = Intrinsics(w, h, intr.fx, intr.fy, intr.cx, intr.cy)
+    return SceneTruth(spec.name, R, scene_intr, fps, times=times, meta=meta)
+
+
+def _reference(motion: CameraMotion) -> tuple[Trajectory, dict]:
+    """The reference trajectory of a synced clip and what its bias was: for a body gyro, the gyro
+    integrated again with the bias of its still parts (not vision's); a recorded picture
+    orientation as it is."""
+    traj = motion.trajectory
+    if motion.source != "gyro":
+        return traj, {}
+    imu = motion.telemetry.imu
+    bias, still_s = still_bias(imu.times, imu.gyro)
+    track = gyro_mod.integrate(imu, bias=bias)
+    traj = Trajectory(traj.times, gyro_mod.frame_rotations(track, motion.sync, traj.times))
+    return traj, {
+        "reference_bias": {
+            "from": "still parts" if still_s >= MIN_STILL_S else "none (the camera never rests)",
+            "deg_s": np.degrees(bias).round(4).tolist(),
+            "still_seconds": round(still_s, 2),
+            "vision_fitted_deg_s": np.degrees(motion.sync.bias).round(4).tolist(),
+        }
+    }
+
+
+def _store_frames(source: Path, video: Path, times: np.ndarray, w: int, h: int, fps: float) -> None:
+    """The first ``len(times)`` frames of ``source``, cropped to ``w`` x ``h``, losslessly at ``video``."""
+    n, written = len(times), 0
     with lossless_writer(video, w, h, fps) as wr:
-        for f in iter_frames(spec.path, max_frames=n):
+        for f in iter_frames(source, max_frames=n):
             wr.write(f.image[:h, :w], float(times[written]))
             written += 1
     if written != n:
-        raise EgovidError(f"{spec.path} decoded {written} frames, its motion has {n}", "the video is damaged")
-    R = traj.R[:n]
-    R = np.swapaxes(R[0], -1, -2)[None] @ R
-    meta = {
+        raise EgovidError(f"{source} decoded {written} frames, its motion has {n}", "the video is damaged")
+
+
+def _meta(spec, motion: CameraMotion, traj: Trajectory, n: int) -> dict:
+    """The scene description of a gyro sequence: where the reference came from and how it was synced."""
+    return {
         "kind": "real",
         "format": "gyro",
         "source": str(spec.path),
@@ -134,9 +150,6 @@ def import_gyro_sequence(spec, video: Path, max_frames: int | None = None) -> Sc
         "camera": motion.camera.to_dict(),
         "undistorted": False,
         **({"gyro_sync": motion.sync.to_dict()} if motion.sync is not None else {}),
-        **bias_meta,
         **({"focal_fit": motion.focal_fit.to_dict()} if motion.focal_fit is not None else {}),
         **({"vision_vs_gyro": motion.comparison.to_dict()} if motion.comparison is not None else {}),
     }
-    scene_intr = Intrinsics(w, h, intr.fx, intr.fy, intr.cx, intr.cy)
-    return SceneTruth(spec.name, R, scene_intr, fps, times=times, meta=meta)

@@ -14,7 +14,11 @@ the score under the factor answers "what works there". Both are in the report.
 
 An odometer that cannot work on a scene by design (one that models pure rotation, on a scene
 where the camera translates close to a planar scene) is listed as out of its domain instead of
-being ranked. With several seeds, a margin smaller than the spread over seeds of the paired
+being ranked. An odometer whose cell did not run (partial or failed,
+:mod:`egovid.voeval.outcome`) is never ranked: it is listed with its outcome and tracked share, so
+one that produced nothing cannot come out best for scoring like "no motion". The floors
+(:mod:`egovid.voeval.floors`) are given beside the winner, and a winner no better than a floor
+is marked. With several seeds, a margin smaller than the spread over seeds of the paired
 difference is called a tie.
 """
 
@@ -24,16 +28,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from egovid.voeval.adapters import ODOMETERS
 from egovid.voeval.matrices import LOWER_IS_BETTER, METRICS
+from egovid.voeval.outcome import outcome, worst
 
 APPLICATION = {"pose_error": "robotic navigation", "oitf": "video stabilisation", "ritf": "augmented reality"}
 
 
 def assumes_pure_rotation(vo: str) -> bool:
     """True for the built-in odometers that model pure rotation (external commands: unknown, False)."""
-    from egovid.voeval.adapters import BUILTIN
-
-    return bool(getattr(BUILTIN.get(vo), "assumes_pure_rotation", False))
+    return bool(getattr(ODOMETERS.get(vo), "assumes_pure_rotation", False))
 
 
 def in_domain(vo: str, motion: str) -> bool:
@@ -50,19 +54,30 @@ class Answer:
     scene: str
     level: str
     metric: str
-    ranking: list[tuple[str, float]] = field(default_factory=list)  # best first, mean over seeds
+    ranking: list[tuple[str, float]] = field(default_factory=list)  # ran, in domain; best first, seed mean
     margin: float = float("nan")  # next minus best, in the metric's units (always >= 0)
     spread: float = 0.0  # std over seeds of the paired difference
     tie: bool = False
     out_of_domain: list[str] = field(default_factory=list)
+    not_run: list[tuple[str, str, float]] = field(default_factory=list)  # (vo, outcome, tracked share)
+    floors: dict[str, float] = field(default_factory=dict)  # floor -> seed mean
 
     @property
     def best(self) -> str | None:
         return self.ranking[0][0] if self.ranking else None
 
+    @property
+    def no_better_than(self) -> str | None:
+        """The floor the winner does not beat (the better floor), or None."""
+        if not self.ranking or not self.floors:
+            return None
+        sign = 1.0 if LOWER_IS_BETTER[self.metric] else -1.0
+        floor = min(self.floors, key=lambda f: sign * self.floors[f])
+        return floor if sign * self.ranking[0][1] >= sign * self.floors[floor] else None
 
-def _scores(cells: dict, vo: str, scene: str, level: str, metric: str, seeds: list[int]) -> dict[int, float]:
-    return {s: cells[(vo, scene, level, s)][metric] for s in seeds if (vo, scene, level, s) in cells}
+
+def _cells(cells: dict, vo: str, scene: str, level: str, seeds: list[int]) -> dict[int, dict]:
+    return {s: cells[(vo, scene, level, s)] for s in seeds if (vo, scene, level, s) in cells}
 
 
 def answer(
@@ -75,19 +90,29 @@ def answer(
     level: str,
     motion: str,
     metric: str,
+    floors: tuple[str, ...] = (),
 ) -> Answer:
-    """Rank the in-domain odometers by their score on ``scene`` at ``level``."""
+    """Rank the in-domain odometers that ran by their score on ``scene`` at ``level``."""
     a = Answer(source, factor, scene, level, metric)
     sign = 1.0 if LOWER_IS_BETTER[metric] else -1.0
     per_vo = {}
     for vo in vos:
-        sc = _scores(cells, vo, scene, level, metric, seeds)
-        if not sc:
+        cs = _cells(cells, vo, scene, level, seeds)
+        if not cs:
             continue
         if not in_domain(vo, motion):
             a.out_of_domain.append(vo)
             continue
-        per_vo[vo] = sc
+        how = worst(c.get("outcome") or outcome(c) for c in cs.values())
+        if how != "ran":
+            share = float(np.mean([c["tracked"] / max(c["frames"], 1) for c in cs.values()]))
+            a.not_run.append((vo, how, share))
+            continue
+        per_vo[vo] = {s: c[metric] for s, c in cs.items()}
+    for f in floors:
+        cs = _cells(cells, f, scene, level, seeds)
+        if cs:
+            a.floors[f] = float(np.mean([c[metric] for c in cs.values()]))
     order = sorted(per_vo, key=lambda v: sign * float(np.mean(list(per_vo[v].values()))))
     a.ranking = [(v, float(np.mean(list(per_vo[v].values())))) for v in order]
     if len(order) >= 2:
@@ -107,26 +132,21 @@ def answers(run) -> list[list[Answer]]:
     if "lossless" not in run.levels:
         return rows
     info = run.scene_info
+
+    def row(source: str, factor: str, scene: str, level: str) -> list[Answer]:
+        motion = info[scene]["motion"]
+        args = (run.cells, run.vos, run.seeds, source, factor, scene, level, motion)
+        return [answer(*args, m, floors=tuple(run.floors)) for m in METRICS]
+
     real = [s for s in run.scenes if info[s]["kind"] == "real"]
     for s in real:  # the user's own footage as recorded: which VO does best on it at all
-        rows.append(
-            [
-                answer(run.cells, run.vos, run.seeds, s, "as recorded", s, "lossless", info[s]["motion"], m)
-                for m in METRICS
-            ]
-        )
+        rows.append(row(s, "as recorded", s, "lossless"))
     for f in run.factors:
-        motion = info[f.hard]["motion"]
-        rows.append(
-            [answer(run.cells, run.vos, run.seeds, f.source, f.name, f.hard, "lossless", motion, m) for m in METRICS]
-        )
+        rows.append(row(f.source, f.name, f.hard, "lossless"))
     strongest = run.levels[-1]
     if strongest != "lossless":
-        ideals = list(dict.fromkeys([*(f.ideal for f in run.factors), *real]))
-        for s in ideals:
+        for s in dict.fromkeys([*(f.ideal for f in run.factors), *real]):
             src = "synthetic" if info[s]["kind"] == "synthetic" else s
             label = f"compression ({s}, {strongest})" if src == "synthetic" else f"compression ({strongest})"
-            rows.append(
-                [answer(run.cells, run.vos, run.seeds, src, label, s, strongest, info[s]["motion"], m) for m in METRICS]
-            )
+            rows.append(row(src, label, s, strongest))
     return rows

@@ -1,12 +1,14 @@
 """The evaluation grid: scenes × compression levels × seeds × visual odometers, on the task engine.
 
-:func:`run_grid` prepares the test videos (synthetic renders, imported real sequences, their
-degraded copies, the H.264 ladder) and then evaluates every missing cell, each stage as
-independent tasks on :mod:`egovid.core.engine`: in this process, on a local pool of worker processes
-(the default), or on a Dask cluster (``--scheduler``; the run folder must then be reachable at the
-same path from every worker). Every output is written atomically by the task that makes it and
-is skipped when it exists, so an interrupted run resumes where it stopped and a task that runs
-twice (its worker was killed, Dask ran it again elsewhere) does no harm.
+:func:`evaluate` is what ``egovid voeval run``, the benchmark and the demo call: :func:`run_grid`,
+then the report. :func:`run_grid` prepares the test videos (synthetic renders, imported real
+sequences, their degraded copies, the H.264 ladder) and then evaluates every missing cell (every
+odometer at every level, and the floors once per scene), each stage as independent tasks on
+:mod:`egovid.core.engine`: in this process, on a local pool of worker processes (the default), or
+on a Dask cluster (``--scheduler``; the run folder must then be reachable at the same path from
+every worker). Every output is written atomically by the task that makes it and is skipped when
+it exists, so an interrupted run resumes where it stopped and a task that runs twice (its worker
+was killed, Dask ran it again elsewhere) does no harm.
 """
 
 from __future__ import annotations
@@ -24,33 +26,31 @@ from egovid.core.errors import EgovidError
 from egovid.core.files import atomic_write_text
 from egovid.core.metrics.visual_error import DEFAULT_CAP_DB
 from egovid.core.video import VideoWriter, iter_frames
+from egovid.voeval.adapters import DEFAULT_TIMEOUT_S, ODOMETERS, available_vos, make_vos, split_command
 from egovid.voeval.cell import ANCHORS, CellJob, evaluate_cell
-from egovid.voeval.degrade import REAL_FACTORS
+from egovid.voeval.degrade import REAL_FACTORS, degrade_scene
+from egovid.voeval.floors import FLOORS
+from egovid.voeval.gyro_reference import check_gyro_video, import_gyro_sequence
 from egovid.voeval.layout import LEVELS, Factor, cell_path, scene_dir, video_path
+from egovid.voeval.report import write_report
 from egovid.voeval.scenes import FACTORS, SCENES, SceneTruth, render_scene
+from egovid.voeval.sequences import SequenceSpec, import_sequence, open_sequence, parse_specs
 
 #: Realistic default (issue 16): 640x480, 300 frames; ``--quick`` is the old smoke-test grid.
 DEFAULT_FRAMES, DEFAULT_SIZE = 300, (640, 480)
 QUICK_FRAMES, QUICK_SIZE = 48, (320, 240)
 #: Settings that change a cell's numbers: a run folder cannot be resumed with other values.
 RESULT_KEYS = ("frames", "width", "height", "cap_db", "anchor")
-#: Odometers that take longest start first, so the grid does not end waiting on one slow cell.
-SLOW_FIRST = {"colmap": 0, "orbslam3": 1, "egovid": 2}
-
-
-def default_vos() -> list[str]:
-    """Every built-in odometer that can run here (ORB-SLAM3 only where pyorbslam3 installs)."""
-    from egovid.voeval.adapters import available_vos
-
-    return available_vos()
 
 
 @dataclass
 class GridConfig:
     """What to evaluate. ``sequences`` are ``FORMAT:PATH`` specs; ``scenes`` the synthetic scenes
-    (empty: real sequences only); ``real_factors`` the image-level factors applied to real frames."""
+    (empty: real sequences only); ``real_factors`` the image-level factors applied to real frames;
+    ``timeout`` the seconds an odometer may run on one video in its own process (then its cell is
+    recorded as timed out)."""
 
-    vos: list[str] = field(default_factory=default_vos)
+    vos: list[str] = field(default_factory=available_vos)
     commands: list[str] = field(default_factory=list)
     frames: int = DEFAULT_FRAMES
     width: int = DEFAULT_SIZE[0]
@@ -63,6 +63,7 @@ class GridConfig:
     cap_db: float = DEFAULT_CAP_DB
     anchor: str = "none"
     preset: str = "medium"
+    timeout: float = DEFAULT_TIMEOUT_S
 
     def check(self) -> None:
         """Raise :class:`EgovidError` for settings that cannot work, before any work starts."""
@@ -89,6 +90,16 @@ class GridConfig:
             )
         if self.frames < 10:
             raise EgovidError(f"{self.frames} frames per scene are too few", "use at least 10")
+        if not self.timeout > 0:
+            raise EgovidError(f"an odometer timeout of {self.timeout} s cannot work", "give a positive --vo-timeout")
+        if not self.vos and not self.commands:
+            raise EgovidError("no visual odometer to evaluate", "give --vo egovid,ecc,... or --vo-cmd")
+        make_vos(self.vos, self.commands)  # unknown or missing odometers fail here, before any work
+
+    @property
+    def odometers(self) -> list[str]:
+        """Names of every odometer of the run: built-ins, then the ``--vo-cmd`` commands."""
+        return [*self.vos, *(split_command(c, i)[0] for i, c in enumerate(self.commands))]
 
 
 @dataclass(frozen=True)
@@ -122,34 +133,39 @@ class EncodeJob:
     preset: str
 
 
+def _render(job: SceneJob, video: Path) -> SceneTruth:
+    return render_scene(job.name, video, frames=job.frames, width=job.width, height=job.height, seed=job.seed)
+
+
+def _import(job: SceneJob, video: Path) -> SceneTruth:
+    [spec] = parse_specs([job.source])
+    spec = SequenceSpec(spec.fmt, spec.path, job.name)
+    if spec.fmt == "gyro":
+        truth = import_gyro_sequence(spec, video, job.frames)
+    else:
+        truth = import_sequence(open_sequence(spec), video, job.frames)
+    truth.meta["source"] = spec.text
+    return truth
+
+
+def _degrade(job: SceneJob, video: Path) -> SceneTruth:
+    base_dir = scene_dir(Path(job.out), job.seed, seeded=False)
+    base = SceneTruth.load(base_dir, job.source)
+    return degrade_scene(base_dir / f"{job.source}.mkv", base, job.factor, job.seed, video)
+
+
+#: How each kind of scene is made.
+PREPARE = {"synthetic": _render, "real": _import, "derived": _degrade}
+
+
 def prepare_scene(job: SceneJob) -> str:
     """Render, import or degrade one scene (skipped when its truth exists); returns its name."""
-    from egovid.voeval.degrade import degrade_scene
-    from egovid.voeval.sequences import import_sequence, open_sequence, parse_specs
-
-    out = Path(job.out)
-    folder = scene_dir(out, job.seed, job.seeded)
+    folder = scene_dir(Path(job.out), job.seed, job.seeded)
     folder.mkdir(parents=True, exist_ok=True)
     if (folder / f"{job.name}.json").exists():
         return job.name
-    video = folder / f"{job.name}.mkv"
     t = time.perf_counter()
-    if job.kind == "synthetic":
-        truth = render_scene(job.name, video, frames=job.frames, width=job.width, height=job.height, seed=job.seed)
-    elif job.kind == "real":
-        [spec] = parse_specs([job.source])
-        spec = type(spec)(spec.fmt, spec.path, job.name)
-        if spec.fmt == "gyro":
-            from egovid.voeval.gyro_reference import import_gyro_sequence
-
-            truth = import_gyro_sequence(spec, video, job.frames)
-        else:
-            truth = import_sequence(open_sequence(spec), video, job.frames)
-        truth.meta["source"] = spec.text
-    else:
-        base_dir = scene_dir(out, job.seed, seeded=False)
-        base = SceneTruth.load(base_dir, job.source)
-        truth = degrade_scene(base_dir / f"{job.source}.mkv", base, job.factor, job.seed, video)
+    truth = PREPARE[job.kind](job, folder / f"{job.name}.mkv")
     truth.meta["prepare_seconds"] = round(time.perf_counter() - t, 2)  # render / import / degrade
     truth.save(folder)
     return job.name
@@ -197,8 +213,6 @@ def _folder_visible(path: str) -> bool:
 
 def scene_jobs(out: Path, cfg: GridConfig) -> tuple[list[SceneJob], list[SceneJob], list[Factor]]:
     """(first-stage jobs, degraded-scene jobs, factor pairs) of a configuration."""
-    from egovid.voeval.sequences import parse_specs
-
     first = [
         SceneJob(str(out), "synthetic", s, seed, cfg.frames, cfg.width, cfg.height)
         for seed in cfg.seeds
@@ -220,15 +234,11 @@ def scene_jobs(out: Path, cfg: GridConfig) -> tuple[list[SceneJob], list[SceneJo
 def check_sequences(out: Path, jobs: list[SceneJob]) -> None:
     """Read every real sequence not imported yet (lists, calibration, reference; not the images),
     so a bad one is reported before any work starts."""
-    from egovid.voeval.sequences import open_sequence, parse_specs
-
     for job in jobs:
         if job.kind != "real" or (scene_dir(out, 0, False) / f"{job.name}.json").exists():
             continue
         [spec] = parse_specs([job.source])
         if spec.fmt == "gyro":
-            from egovid.voeval.gyro_reference import check_gyro_video
-
             check_gyro_video(spec.path)
         else:
             open_sequence(spec)
@@ -261,6 +271,60 @@ def _raise_failures(stage: str, failures: list) -> None:
         )
 
 
+class _Stages:
+    """Runs the grid's stages on one engine client, timing each (``seconds[stage]``)."""
+
+    def __init__(self, engine: EngineConfig, client, progress: Callable[[str, int, int], None] | None) -> None:
+        self.engine, self.client, self.progress = engine, client, progress
+        self.seconds: dict[str, float] = {}
+
+    def run(self, name: str, fn: Callable, items: list, keys: list[str]) -> list:
+        """Run ``fn`` on every item; returns the failures as (key, error)."""
+        failures = []
+        t_stage = time.perf_counter()
+        if self.progress:
+            self.progress(name, 0, len(items))
+        tasks = run_tasks(
+            guarded,
+            [(fn, it) for it in items],
+            config=self.engine,
+            keys=keys,
+            name=f"voeval-{name}",
+            client=self.client,
+        )
+        for done, o in enumerate(tasks, start=1):
+            if not o.ok:
+                failures.append((o.key, o.error))
+            elif isinstance(o.value, EgovidError):
+                failures.append((o.key, o.value))
+            if self.progress:
+                self.progress(name, done, len(items))
+        self.seconds[name] = time.perf_counter() - t_stage
+        return failures
+
+
+def _encode_jobs(out: Path, cfg: GridConfig, instances: list[tuple[str, int, bool]]) -> list[EncodeJob]:
+    jobs = []
+    for s, seed, seeded in instances:
+        missing = [lv for lv in cfg.levels if lv != "lossless" and not video_path(out, s, lv, seed, seeded).exists()]
+        if missing:
+            jobs.append(EncodeJob(str(out), s, seed, seeded, tuple(missing), cfg.preset))
+    return jobs
+
+
+def _cell_jobs(out: Path, cfg: GridConfig, instances: list[tuple[str, int, bool]]) -> list[CellJob]:
+    """Every cell of the run: each odometer at each level, each floor at the lossless level only."""
+    seeded = {s: sd for s, _, sd in instances}
+    scenes = list(dict.fromkeys(s for s, _, _ in instances))
+    cmds = tuple(cfg.commands)
+
+    def job(vo: str, s: str, lv: str, seed: int) -> CellJob:
+        return CellJob(str(out), vo, cmds, s, seeded[s], lv, seed, cfg.cap_db, cfg.anchor, cfg.timeout)
+
+    cells = [job(vo, s, lv, seed) for vo in cfg.odometers for s in scenes for lv in cfg.levels for seed in cfg.seeds]
+    return cells + [job(f, s, "lossless", seed) for f in FLOORS for s in scenes for seed in cfg.seeds]
+
+
 def run_grid(
     out: str | os.PathLike,
     cfg: GridConfig,
@@ -269,15 +333,11 @@ def run_grid(
 ) -> dict:
     """Prepare every missing scene and video, evaluate every missing cell.
 
-    Returns ``{"cells": n, "computed": m, "seconds": s, "stages": {stage: seconds}}``.
+    Returns ``{"cells": n, "computed": m, "seconds": s, "stages": {stage: seconds}}`` (floor cells
+    included).
     """
-    from egovid.voeval.adapters import make_vos
-
     out = Path(out).resolve()
     cfg.check()
-    make_vos(cfg.vos, cfg.commands)  # unknown names fail here, before any work
-    if not cfg.vos and not cfg.commands:
-        raise EgovidError("no visual odometer to evaluate", "give --vo egovid,ecc,... or --vo-cmd")
     engine = engine or EngineConfig(workers=2)
     first, derived, factors = scene_jobs(out, cfg)
     check_sequences(out, first)
@@ -285,8 +345,6 @@ def run_grid(
     _check_resume(out, cfg)
     atomic_write_text(out / "config.json", json.dumps(asdict(cfg), indent=1))
     t0 = time.perf_counter()
-    vo_names = [*cfg.vos, *(_command_name(c, i) for i, c in enumerate(cfg.commands))]
-    stages: dict[str, float] = {}
     with open_client(engine) as client:
         if client is not None and engine.scheduler is not None:
             [seen] = run_tasks(_folder_visible, [str(out)], config=engine, client=client, name="voeval-check")
@@ -295,58 +353,41 @@ def run_grid(
                     f"the Dask workers cannot see the run folder {out}",
                     "put --out on a filesystem every worker mounts at the same path (e.g. NFS)",
                 )
-
-        def stage(name: str, fn, items: list, keys: list[str]) -> list:
-            failures = []
-            t_stage = time.perf_counter()
-            if progress:
-                progress(name, 0, len(items))
-            tasks = run_tasks(
-                guarded, [(fn, it) for it in items], config=engine, keys=keys, name=f"voeval-{name}", client=client
-            )
-            for done, o in enumerate(tasks, start=1):
-                if not o.ok:
-                    failures.append((o.key, o.error))
-                elif isinstance(o.value, EgovidError):
-                    failures.append((o.key, o.value))
-                if progress:
-                    progress(name, done, len(items))
-            stages[name] = time.perf_counter() - t_stage
-            return failures
-
-        _raise_failures("scene", stage("scenes", prepare_scene, first, [f"{j.name}@s{j.seed}" for j in first]))
-        _raise_failures("scene", stage("degrade", prepare_scene, derived, [f"{j.name}@s{j.seed}" for j in derived]))
+        stages = _Stages(engine, client, progress)
+        _raise_failures("scene", stages.run("scenes", prepare_scene, first, [f"{j.name}@s{j.seed}" for j in first]))
+        keys = [f"{j.name}@s{j.seed}" for j in derived]
+        _raise_failures("scene", stages.run("degrade", prepare_scene, derived, keys))
         instances = [(j.name, j.seed, j.seeded) for j in [*first, *derived]]
-        enc = []
-        for s, seed, seeded in instances:
-            missing = [
-                lv for lv in cfg.levels if lv != "lossless" and not video_path(out, s, lv, seed, seeded).exists()
-            ]
-            if missing:
-                enc.append(EncodeJob(str(out), s, seed, seeded, tuple(missing), cfg.preset))
-        _raise_failures("encode", stage("ladder", encode_levels, enc, [f"{j.scene}@s{j.seed}-ladder" for j in enc]))
-        catalogue = _catalogue(out, first, derived, factors)
-        atomic_write_text(out / "scenes.json", json.dumps(catalogue, indent=1))
-        seeded = {s: sd for s, _, sd in instances}
-        scenes = list(dict.fromkeys(s for s, _, _ in instances))
-        all_cells = [
-            CellJob(str(out), vo, tuple(cfg.commands), s, seeded[s], lv, seed, cfg.cap_db, cfg.anchor)
-            for vo in vo_names
-            for s in scenes
-            for lv in cfg.levels
-            for seed in cfg.seeds
-        ]
+        enc = _encode_jobs(out, cfg, instances)
+        keys = [f"{j.scene}@s{j.seed}-ladder" for j in enc]
+        _raise_failures("encode", stages.run("ladder", encode_levels, enc, keys))
+        atomic_write_text(out / "scenes.json", json.dumps(_catalogue(out, first, derived, factors), indent=1))
+        all_cells = _cell_jobs(out, cfg, instances)
         todo = [c for c in all_cells if not cell_path(out, c.vo, c.scene, c.level, c.seed).exists()]
-        todo.sort(key=lambda c: SLOW_FIRST.get(c.vo, 9))
-        failures = stage("cells", evaluate_cell, todo, [f"{c.vo}/{c.scene}/{c.level}/s{c.seed}" for c in todo])
+        todo.sort(key=lambda c: getattr(ODOMETERS.get(c.vo), "slow_rank", 9))
+        failures = stages.run("cells", evaluate_cell, todo, [f"{c.vo}/{c.scene}/{c.level}/s{c.seed}" for c in todo])
     _raise_failures("cell", failures)
-    return {"cells": len(all_cells), "computed": len(todo), "seconds": time.perf_counter() - t0, "stages": stages}
+    seconds = time.perf_counter() - t0
+    return {"cells": len(all_cells), "computed": len(todo), "seconds": seconds, "stages": stages.seconds}
 
 
-def _command_name(command: str, index: int) -> str:
-    from egovid.voeval.adapters import split_command
-
-    return split_command(command, index)[0]
+def evaluate(
+    out: str | os.PathLike,
+    cfg: GridConfig,
+    engine: EngineConfig | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+    *,
+    report: bool = True,
+    norm: str = "thesis",
+) -> dict:
+    """``egovid voeval run``: :func:`run_grid`, then (``report``) :func:`write_report`. Returns
+    run_grid's summary plus ``"report": (html, md)`` paths (None without a report) and
+    ``"report_seconds"``."""
+    r = run_grid(out, cfg, engine, progress)
+    t = time.perf_counter()
+    r["report"] = write_report(out, norm=norm) if report else None
+    r["report_seconds"] = time.perf_counter() - t
+    return r
 
 
 def _catalogue(out: Path, first: list[SceneJob], derived: list[SceneJob], factors: list[Factor]) -> dict:
@@ -364,39 +405,3 @@ def _catalogue(out: Path, first: list[SceneJob], derived: list[SceneJob], factor
             **({"factor": j.factor} if j.factor else {}),
         }
     return {"scenes": scenes, "factors": [asdict(f) for f in factors]}
-
-
-@dataclass
-class RunResults:
-    """Every cell of a run folder: ``cells[(vo, scene, level, seed)]``, with the run's odometers,
-    scenes, levels, seeds, factor pairs and scene descriptions in a stable order."""
-
-    cells: dict
-    vos: list[str]
-    scenes: list[str]
-    levels: list[str]
-    seeds: list[int]
-    factors: list[Factor]
-    scene_info: dict
-
-
-def load_results(out: str | os.PathLike) -> RunResults:
-    """Read all cells of a run folder."""
-    out = Path(out)
-    if not (out / "results").exists() or not (out / "scenes.json").exists():
-        raise EgovidError(f"{out} has no results", "run `egovid voeval run --out DIR` first")
-    catalogue = json.loads((out / "scenes.json").read_text())
-    cells = {}
-    for f in sorted((out / "results").glob("*/s*/*.json")):
-        c = json.loads(f.read_text())
-        cells[(c["vo"], c["scene"], c["level"], c["seed"])] = c
-    if not cells:
-        raise EgovidError(f"{out} has no finished cells", "run `egovid voeval run --out DIR` (it resumes)")
-    cfg = json.loads((out / "config.json").read_text()) if (out / "config.json").exists() else {}
-    order = [*cfg.get("vos", [])]
-    vos = sorted({k[0] for k in cells}, key=lambda v: (order.index(v) if v in order else len(order), v))
-    scenes = [s for s in catalogue["scenes"] if any(k[1] == s for k in cells)]
-    levels = [lv for lv in LEVELS if any(k[2] == lv for k in cells)]
-    seeds = sorted({k[3] for k in cells})
-    factors = [Factor(**f) for f in catalogue["factors"] if f["ideal"] in scenes and f["hard"] in scenes]
-    return RunResults(cells, vos, scenes, levels, seeds, factors, catalogue["scenes"])

@@ -39,11 +39,15 @@ import cv2
 import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.errors import EgovidError
+from egovid.core.files import atomic_write_text
 from egovid.core.rotations import matrix_from_euler
-from egovid.core.trajectory import Trajectory, write_tum
+from egovid.core.trajectory import Trajectory, read_tum, write_tum
 from egovid.core.video import VideoWriter
 from egovid.synth import effects
+from egovid.synth.fpv import scene_panorama
 from egovid.synth.photos import photo
+from egovid.synth.render import SphereRenderer
 
 #: Pictures a learned odometer would have been trained on, and pictures it never saw.
 LEARNED = ("astronaut", "coffee", "rocket", "chelsea")
@@ -66,8 +70,10 @@ MOTION = {"orbit": "translating", "pano": "rotating"}
 @dataclass
 class SceneTruth:
     """Ground truth of a test video: camera-to-world rotations (N, 3, 3) relative to frame 0,
-    the camera, the frame rate, frame times (N,) in seconds (default ``index / fps``) and a
-    description (``meta``: kind synthetic/real/derived, motion translating/rotating/general, source)."""
+    the camera, the frame rate, frame times (N,) in seconds (default ``index / fps``), camera
+    positions ``t`` (N, 3) relative to frame 0 in the first camera's axes (None: the reference has
+    no positions, e.g. a gyro; units in ``meta["translation_unit"]``) and a description (``meta``:
+    kind synthetic/real/derived, motion translating/rotating/general, source, format)."""
 
     name: str
     R: np.ndarray
@@ -75,6 +81,7 @@ class SceneTruth:
     fps: float
     times: np.ndarray | None = None
     meta: dict | None = None
+    t: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.times is None:
@@ -87,11 +94,14 @@ class SceneTruth:
         """ "translating", "rotating" or "general" (real recordings)."""
         return self.meta.get("motion", MOTION.get(self.name.split("-")[0], "general"))
 
+    @property
+    def dataset(self) -> str:
+        """The kind of footage: ``synthetic`` or a ``--sequence`` format (euroc, tum, kitti, frames, gyro)."""
+        return self.meta.get("format", "synthetic")
+
     def save(self, folder: Path) -> None:
         """Write ``NAME.gt.tum`` and ``NAME.json`` (atomically, the JSON last)."""
-        from egovid.core.files import atomic_write_text
-
-        write_tum(folder / f"{self.name}.gt.tum", Trajectory(self.times, self.R))
+        write_tum(folder / f"{self.name}.gt.tum", Trajectory(self.times, self.R, self.t))
         i = self.intrinsics
         meta = {
             **self.meta,
@@ -105,17 +115,24 @@ class SceneTruth:
             "cy": i.cy,
             "frames": len(self.R),
             "motion": self.motion,
+            "has_translation": self.t is not None,
         }
         atomic_write_text(folder / f"{self.name}.json", json.dumps(meta, indent=1))
 
     @classmethod
     def load(cls, folder: Path, name: str) -> SceneTruth:
-        from egovid.core.trajectory import read_tum
-
         meta = json.loads((folder / f"{name}.json").read_text())
         intr = Intrinsics(meta["width"], meta["height"], meta["fx"], meta["fy"], meta["cx"], meta["cy"])
         traj = read_tum(folder / f"{name}.gt.tum")
-        return cls(name, traj.R, intr, meta["fps"], traj.times, meta)
+        t = traj.t if meta.get("has_translation") else None
+        return cls(name, traj.R, intr, meta["fps"], traj.times, meta, t)
+
+
+def relative_to_first(R: np.ndarray, t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Camera-to-world poses (R (N, 3, 3), camera centres t (N, 3)) expressed in the first
+    camera's frame: ``R0ᵀ R``, ``R0ᵀ (t - t0)``."""
+    R0T = np.swapaxes(R[0], -1, -2)
+    return R0T @ R, (None if t is None else (np.asarray(t, float) - t[0]) @ R0T.T)
 
 
 def lossless_writer(path: Path, width: int, height: int, fps: float) -> VideoWriter:
@@ -193,7 +210,9 @@ def dolly(frame: float, amplitude: float = 0.3, period: float = 96.0) -> float:
 def render_scene(
     name: str, out: Path, *, frames: int = 48, width: int = 320, height: int = 240, fps: float = 30.0, seed: int = 0
 ) -> SceneTruth:
-    """Render one scene losslessly (:func:`lossless_writer`, .mkv) and return its ground truth.
+    """Render one scene losslessly (:func:`lossless_writer`, .mkv) and return its ground truth
+    (rotations and camera positions: orbit in units of the orbit's distance to the picture, pano
+    in metres).
 
     ``seed`` varies what a repeated run should not depend on, identically for the ideal and the
     challenging scene of a factor: the orbit's start and direction, the order of the photos in
@@ -201,55 +220,75 @@ def render_scene(
     the canonical scene (orbit from angle 0, photos in the listed order).
     """
     if name not in SCENES:
-        from egovid.core.errors import EgovidError
-
         raise EgovidError(f"unknown scene {name!r}", f"choose from {', '.join(SCENES)}")
+    kind = name.split("-")[0]
+    views = _orbit_views if kind == "orbit" else _pano_views
+    intr, frames_iter = views(name, frames, width, height, seed)
+    Rs, cs = [], []
+    with lossless_writer(out, width, height, fps) as w:
+        for k, (img, R, c) in enumerate(frames_iter):
+            w.write(img, k / fps)
+            Rs.append(R)
+            cs.append(c)
+    R, t = relative_to_first(np.stack(Rs), np.stack(cs))
+    unit = "orbit distance (1 = camera to picture)" if kind == "orbit" else "m"
+    meta = {"kind": "synthetic", "motion": MOTION[kind], "seed": seed, "translation_unit": unit}
+    return SceneTruth(name, R, intr, fps, meta=meta, t=t)
+
+
+def _seeded(seed: int) -> tuple[float, float, np.ndarray | None, np.random.Generator]:
+    """(start phase in radians, orbit direction, photo order, noise generator) of a seed."""
     rng_motion, rng_pictures, rng_noise = (np.random.default_rng([seed, k]) for k in range(3))
     phase = float(rng_motion.uniform(0, 2 * math.pi)) if seed else 0.0
     direction = float(rng_motion.choice([-1.0, 1.0])) if seed else 1.0
     order = rng_pictures.permutation(4) if seed else None
-    Rs = []
-    if name.startswith("orbit"):
-        intr = Intrinsics.from_hfov(width, height, 60.0)
-        picture = mosaic(UNSEEN if name == "orbit-unseen" else LEARNED, order=order)
-        omega = direction * 2 * math.pi / frames
-        with lossless_writer(out, width, height, fps) as w:
-            for k in range(frames):
-                c, R = orbit_pose(k, 0.25, 1.0, omega, phase)
-                img = render_orbit(picture, intr, c, R)
-                if name == "orbit-fog":
-                    img = effects.fog(img, 0.75)
-                elif name == "orbit-sensor":
-                    img = effects.sensor(img, rng_noise)
-                w.write(img, k / fps)
-                Rs.append(R)
-    else:
-        from egovid.synth.fpv import scene_panorama
-        from egovid.synth.render import SphereRenderer
+    return phase, direction, order, rng_noise
 
-        intr = Intrinsics.from_hfov(width, height, 75.0)
-        rend = SphereRenderer(scene_panorama("panorama", 2048, seed), intr)
-        stride = phase / (2 * math.pi) * 24.0  # the seed's start, in frames of the 24-frame stride
-        with lossless_writer(out, width, height, fps) as w:
-            for k in range(frames):
-                pos = np.array([0.0, 0.0, dolly(k)])
-                if name == "pano-motion":
-                    readout, exposure, sub = 0.9, 0.5, 5
-                    subs = []
-                    for j in range(sub):
-                        t0 = k + exposure * j / (sub - 1)
-                        ts = t0 + readout * np.linspace(0, 1, 16)
-                        a = running_angles(ts, phase=stride)
-                        subs.append(rend.render_rolling(list(matrix_from_euler(a[:, 0], a[:, 1], a[:, 2])), pos))
-                    img = effects.blur_average(subs)
-                    a = running_angles(np.array([k + exposure / 2 + readout / 2]), phase=stride)[0]
-                else:
-                    a = running_angles(np.array([k]), phase=stride)[0]
-                    img = rend.render(matrix_from_euler(*a), pos)
-                w.write(img, k / fps)
-                Rs.append(matrix_from_euler(*a))
-    R = np.stack(Rs)
-    R = np.swapaxes(R[0], -1, -2) @ R
-    return SceneTruth(
-        name, R, intr, fps, meta={"kind": "synthetic", "motion": MOTION[name.split("-")[0]], "seed": seed}
-    )
+
+def _orbit_views(name: str, frames: int, width: int, height: int, seed: int):
+    """(intrinsics, iterator of (BGR image, camera-to-world R, camera centre)) of an orbit scene."""
+    phase, direction, order, rng_noise = _seeded(seed)
+    intr = Intrinsics.from_hfov(width, height, 60.0)
+    picture = mosaic(UNSEEN if name == "orbit-unseen" else LEARNED, order=order)
+    omega = direction * 2 * math.pi / frames
+
+    def views():
+        for k in range(frames):
+            c, R = orbit_pose(k, 0.25, 1.0, omega, phase)
+            img = render_orbit(picture, intr, c, R)
+            if name == "orbit-fog":
+                img = effects.fog(img, 0.75)
+            elif name == "orbit-sensor":
+                img = effects.sensor(img, rng_noise)
+            yield img, R, c
+
+    return intr, views()
+
+
+def _pano_views(name: str, frames: int, width: int, height: int, seed: int):
+    """(intrinsics, iterator of (BGR image, camera-to-world R, camera centre)) of a pano scene;
+    pano-motion's rotation is the one at the middle of its exposure and readout."""
+    phase = _seeded(seed)[0]
+    intr = Intrinsics.from_hfov(width, height, 75.0)
+    rend = SphereRenderer(scene_panorama("panorama", 2048, seed), intr)
+    stride = phase / (2 * math.pi) * 24.0  # the seed's start, in frames of the 24-frame stride
+
+    def views():
+        for k in range(frames):
+            pos = np.array([0.0, 0.0, dolly(k)])
+            if name == "pano-motion":
+                readout, exposure, sub = 0.9, 0.5, 5
+                subs = []
+                for j in range(sub):
+                    t0 = k + exposure * j / (sub - 1)
+                    ts = t0 + readout * np.linspace(0, 1, 16)
+                    a = running_angles(ts, phase=stride)
+                    subs.append(rend.render_rolling(list(matrix_from_euler(a[:, 0], a[:, 1], a[:, 2])), pos))
+                img = effects.blur_average(subs)
+                a = running_angles(np.array([k + exposure / 2 + readout / 2]), phase=stride)[0]
+            else:
+                a = running_angles(np.array([k]), phase=stride)[0]
+                img = rend.render(matrix_from_euler(*a), pos)
+            yield img, matrix_from_euler(*a), pos
+
+    return intr, views()

@@ -22,7 +22,7 @@ from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.errors import EgovidError
 from egovid.core.rotations import so3_exp, so3_log
 from egovid.voeval.datasets import READERS, RawSequence, check_times
-from egovid.voeval.scenes import SceneTruth, lossless_writer
+from egovid.voeval.scenes import SceneTruth, lossless_writer, relative_to_first
 
 FORMATS = (*READERS, "gyro")
 FORMAT_HELP = {
@@ -173,8 +173,7 @@ def import_sequence(seq: RawSequence, video: Path, max_frames: int | None = None
             if maps is not None:
                 img = cv2.remap(img, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
             wr.write(img[:h, :w], float(times[k - a]))
-    R = R_all[a:b]
-    R = np.swapaxes(R[0], -1, -2) @ R
+    R, t = relative_to_first(R_all[a:b], _positions(seq, times + seq.image_times[a]))
     meta = {
         "kind": "real",
         "format": seq.fmt,
@@ -185,6 +184,16 @@ def import_sequence(seq: RawSequence, video: Path, max_frames: int | None = None
         "first_frame": a,
         "reference_rate_hz": round(1.0 / float(np.median(np.diff(seq.ref_times))), 3),
         "undistorted": maps is not None,
+        "translation_unit": "m",
     }
     intr = Intrinsics(w, h, float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy))
-    return SceneTruth(seq.name, R, intr, fps, times=times, meta=meta)
+    return SceneTruth(seq.name, R, intr, fps, times=times, meta=meta, t=t)
+
+
+def _positions(seq: RawSequence, frame_times: np.ndarray) -> np.ndarray | None:
+    """The reference's camera centre at each frame time (linear between samples; None where the
+    dataset gives no positions or they never change)."""
+    p = seq.ref_pos
+    if p is None or not np.any(np.abs(p - p[0]) > 0):
+        return None
+    return np.stack([np.interp(frame_times, seq.ref_times, p[:, k]) for k in range(3)], axis=1)

@@ -310,6 +310,7 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
     data = resources.files("egovid.data")
     routes = [
         Route("/", lambda r: FileResponse(str(data / "serve" / "index.html"), headers={"cache-control": "no-store"})),
+        Route("/favicon.ico", lambda r: Response(status_code=204)),
         Route("/api/info", info),
         Route("/api/drives", drives),
         Route("/api/drives/{id:int}/track", track),

@@ -90,6 +90,10 @@
   }
 
   async function clickTrack(d, latlng) {
+    if (Player.drive && Player.track && Player.drive.id !== d.id) {  // tracks of one road overlap: the playing one first
+      const hit = nearestTime(Player.track, latlng);
+      if (hit && hit.px < 12) { Player.seek(hit.t); return; }
+    }
     const track = Player.drive && Player.drive.id === d.id ? Player.track : await api(`/api/drives/${d.id}/track`);
     const hit = nearestTime(track, latlng);
     const t = hit ? hit.t : 0;
@@ -154,52 +158,55 @@
   }
   for (const id of ["f-day", "f-kind", "f-locked", "f-path"]) $(id).addEventListener("change", applyFilters);
 
-  // -- timeline --------------------------------------------------------------------------------------
-  const TL = { t0: 0, t1: 1, w: 1 };
+  // -- timeline: one row per day, time of day across (UTC) ------------------------------------------
+  const TL = { t0: 0, t1: 1, w: 1, rows: [] };
+  const DAY = 86400;
   function drawTimeline() {
     const svg = $("tl");
     svg.replaceChildren();
-    const w = svg.clientWidth || 800, h = svg.clientHeight || 100;
-    const ds = S.shown.length ? S.shown : [];
+    const ds = S.shown;
     if (!ds.length) return;
-    let t0 = Math.min(...ds.map((d) => d.start_utc)), t1 = Math.max(...ds.map((d) => d.start_utc + d.duration));
+    const days = [...new Set(ds.map((d) => Math.floor(d.start_utc / DAY)))].sort((a, b) => a - b);
+    const rh = 16, top = 4, h = top + days.length * (rh + 4) + 18;
+    svg.style.height = h + "px";
+    const w = svg.clientWidth || 800, label = 74;
+    let t0 = Math.min(...ds.map((d) => d.start_utc - Math.floor(d.start_utc / DAY) * DAY));
+    let t1 = Math.max(...ds.map((d) => d.start_utc + d.duration - Math.floor(d.start_utc / DAY) * DAY));
     const pad = Math.max((t1 - t0) * 0.02, 1);
-    t0 -= pad; t1 += pad;
-    Object.assign(TL, { t0, t1, w });
-    const x = (t) => ((t - t0) / (t1 - t0)) * w;
-    const rows = Math.min(ds.length, 6), rh = Math.min(18, (h - 24) / rows);
+    t0 = Math.max(0, t0 - pad); t1 = t1 + pad;
+    Object.assign(TL, { t0, t1, w, label, days });
+    const x = (tod) => label + ((tod - t0) / (t1 - t0)) * (w - label - 4);
     const ns = "http://www.w3.org/2000/svg";
-    ds.forEach((d, i) => {
-      const r = document.createElementNS(ns, "rect");
-      r.setAttribute("x", x(d.start_utc)); r.setAttribute("width", Math.max(3, x(d.start_utc + d.duration) - x(d.start_utc)));
-      r.setAttribute("y", 4 + (i % rows) * (rh + 2)); r.setAttribute("height", rh);
-      r.setAttribute("fill", colourOf(d)); r.setAttribute("class", "drive"); r.dataset.id = d.id;
+    const el = (name, attrs, text) => {
+      const e = document.createElementNS(ns, name);
+      for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+      if (text !== undefined) e.textContent = text;
+      svg.append(e);
+      return e;
+    };
+    days.forEach((day, i) => el("text", { x: 2, y: top + i * (rh + 4) + rh - 4 }, isoUtc(day * DAY).slice(0, 10)));
+    for (const d of ds) {
+      const day = Math.floor(d.start_utc / DAY), row = days.indexOf(day), tod = d.start_utc - day * DAY;
+      const r = el("rect", { x: x(tod), y: top + row * (rh + 4), height: rh, class: "drive", fill: colourOf(d),
+                             width: Math.max(3, x(tod + d.duration) - x(tod)) });
+      r.dataset.id = d.id;
       const title = document.createElementNS(ns, "title"); title.textContent = `${d.name} ${d.start}`; r.append(title);
       r.addEventListener("click", (e) => {
         e.stopPropagation();
-        const t = ((e.offsetX / w) * (t1 - t0) + t0) - d.start_utc;
-        const within = Math.min(Math.max(t, 0), d.duration - 0.05);
+        const at = t0 + ((e.offsetX - label) / (w - label - 4)) * (t1 - t0) - tod;
+        const within = Math.min(Math.max(at, 0), d.duration - 0.05);
         if (Player.drive && Player.drive.id === d.id) Player.seek(within); else Player.open(d, within);
       });
-      svg.append(r);
-    });
-    for (const [t, anchor] of [[t0 + pad, "start"], [t1 - pad, "end"]]) {
-      const tx = document.createElementNS(ns, "text");
-      tx.setAttribute("x", x(t)); tx.setAttribute("y", h - 4); tx.setAttribute("text-anchor", anchor);
-      tx.textContent = isoUtc(t).replace("T", " ");
-      svg.append(tx);
     }
-    const head = document.createElementNS(ns, "line");
-    head.id = "tl-head"; head.setAttribute("y1", 0); head.setAttribute("y2", h - 16);
-    head.setAttribute("stroke", "#d00"); head.setAttribute("stroke-width", 2); head.setAttribute("visibility", "hidden");
-    svg.append(head);
+    for (const [t, anchor] of [[t0, "start"], [(t0 + t1) / 2, "middle"], [t1, "end"]]) {
+      el("text", { x: x(t), y: h - 4, "text-anchor": anchor }, isoUtc(Math.round(t)).slice(11, 19) + " UTC");
+    }
+    el("line", { id: "tl-head", y1: 0, y2: h - 16, stroke: "#d00", "stroke-width": 2, visibility: "hidden" });
   }
-  $("tl").addEventListener("click", (e) => {  // a click beside a drive's bar: the drive recording then, if any
-    const t = (e.offsetX / TL.w) * (TL.t1 - TL.t0) + TL.t0;
-    const d = S.shown.find((x) => x.start_utc <= t && t <= x.start_utc + x.duration);
-    if (!d) return;
-    if (Player.drive && Player.drive.id === d.id) Player.seek(t - d.start_utc); else Player.open(d, t - d.start_utc);
-  });
+  function timelineX(d, t) {  // x of second t of drive d on the timeline
+    const day = Math.floor(d.start_utc / DAY), tod = d.start_utc - day * DAY + t;
+    return TL.label + ((tod - TL.t0) / (TL.t1 - TL.t0)) * (TL.w - TL.label - 4);
+  }
   window.addEventListener("resize", () => drawTimeline());
 
   // -- the player: Media Source Extensions, chunks of fragmented MP4 appended where they belong --------
@@ -388,9 +395,10 @@
       if (b) for (let i = 0; i < b.length; i++) if (b.start(i) <= t + 0.1) end = Math.max(end, b.end(i));
       $("scrub-buffered").style.width = (100 * end / m.duration) + "%";
       const head = $("tl-head");
-      if (head) {
-        const x = ((d.start_utc + t - TL.t0) / (TL.t1 - TL.t0)) * TL.w;
+      if (head && TL.days && TL.days.includes(Math.floor(d.start_utc / DAY))) {
+        const x = timelineX(d, t), row = TL.days.indexOf(Math.floor(d.start_utc / DAY));
         head.setAttribute("x1", x); head.setAttribute("x2", x); head.setAttribute("visibility", "visible");
+        head.setAttribute("y1", 2 + row * 20); head.setAttribute("y2", 22 + row * 20);
       }
     }
     requestAnimationFrame(tick);

@@ -23,8 +23,16 @@ from test_serve_api import copy_archive, serve_archive  # noqa: F401 - the share
 from conftest import cli_env
 
 CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--autoplay-policy=no-user-gesture-required"]  # fmt: skip
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--autoplay-policy=no-user-gesture-required",
+]
 
 
 def wait_js(page, expr: str, what: str, timeout: float = 30.0):
@@ -46,9 +54,14 @@ def egovid_serve(archive: Path, log: Path, *args: str):
     """``egovid serve ARCHIVE --port 0`` in its own process group; yields the address it printed.
     Stopped with SIGTERM (killed if it does not stop in 20 s)."""
     with open(log, "w") as fh:
-        proc = subprocess.Popen([sys.executable, "-m", "egovid", "serve", str(archive), "--port", "0", "--tiles",
-                                 "none", *args], stdout=subprocess.PIPE, stderr=fh, text=True, env=cli_env(),
-                                start_new_session=True)  # fmt: skip
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "egovid", "serve", str(archive), "--port", "0", "--tiles", "none", *args],
+            stdout=subprocess.PIPE,
+            stderr=fh,
+            text=True,
+            env=cli_env(),
+            start_new_session=True,
+        )
     try:
         line = ""
         deadline = time.monotonic() + 120
@@ -74,9 +87,13 @@ def browser(tmp_path_factory):
         pytest.skip("no /usr/bin/chromium (make test installs Debian's chromium)")
     with pw.sync_playwright() as p:
         ctx = p.chromium.launch_persistent_context(
-            str(tmp_path_factory.mktemp("chromium-profile")), executable_path=str(CHROMIUM), args=CHROMIUM_ARGS,
-            headless=True, viewport={"width": 1280, "height": 800}, accept_downloads=True,
-        )  # fmt: skip
+            str(tmp_path_factory.mktemp("chromium-profile")),
+            executable_path=str(CHROMIUM),
+            args=CHROMIUM_ARGS,
+            headless=True,
+            viewport={"width": 1280, "height": 800},
+            accept_downloads=True,
+        )
         ctx.set_default_timeout(30_000)
         try:
             yield ctx
@@ -118,7 +135,9 @@ def test_play_seek_clip_and_forget_in_chromium(browser, serve_archive, tmp_path)
         page.mouse.click(bar["x"] + 0.5 * bar["width"], bar["y"] + bar["height"] / 2)
         wait_js(page, "document.body.dataset.playing === '1' && video.currentTime > 2", "monday from the timeline")
         # Seek from the map: a click on the playing drive's track near its start.
-        first = page.evaluate("egovid.map.latLngToContainerPoint([egovid.Player.track.lat[0], egovid.Player.track.lon[0]])")
+        first = page.evaluate(
+            "egovid.map.latLngToContainerPoint([egovid.Player.track.lat[0], egovid.Player.track.lon[0]])"
+        )
         mbox = page.locator("#map").bounding_box()
         page.mouse.click(mbox["x"] + first["x"], mbox["y"] + first["y"])
         wait_js(page, "video.currentTime < 1.5 && !video.seeking", "the seek from the map")

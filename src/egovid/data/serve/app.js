@@ -213,7 +213,7 @@
   const video = $("video");
   const Player = {
     drive: null, manifest: null, track: null, ms: null, sb: null, gen: 0, busy: false, abort: null,
-    failures: 0, started: 0,
+    failures: 0, started: 0, seekTarget: null, seekStarted: 0,
 
     chunkAt(t) { const m = this.manifest; return Math.min(m.chunks - 1, Math.max(0, Math.floor((t * m.fps + 1e-6) / m.chunk_frames))); },
     chunkStart(k) { return (k * this.manifest.chunk_frames) / this.manifest.fps; },
@@ -229,6 +229,7 @@
       this.stop();
       this.drive = d;
       this.started = performance.now();
+      this.seekTarget = null;
       document.body.dataset.playing = String(d.id);
       document.body.dataset.firstFrame = "";
       status(`opening ${d.name}…`);
@@ -342,7 +343,9 @@
       if (!this.manifest) return;
       t = Math.min(Math.max(0, t), this.manifest.duration - 0.5 / this.manifest.fps);
       this.seekStarted = performance.now();
+      this.seekTarget = t;
       document.body.dataset.seeked = "";
+      document.body.dataset.seekFrame = "";
       if (!this.buffered(t) && this.abort) { this.abort.abort(); this.busy = false; }
       video.currentTime = t;
       this.failures = 0;
@@ -372,8 +375,15 @@
     Player.seek(((e.clientX - r.left) / r.width) * Player.manifest.duration);
   });
   if ("requestVideoFrameCallback" in video) {
-    const onFrame = () => {
-      if (Player.started && !document.body.dataset.firstFrame) document.body.dataset.firstFrame = String(Math.round(performance.now() - Player.started));
+    // Latencies for the benchmark and the tests: click to the first frame shown, seek to the first
+    // frame shown at the new position (milliseconds, in data-first-frame / data-seek-frame).
+    const onFrame = (now, meta) => {
+      const ms = String(Math.round(performance.now() - (Player.seekTarget !== null ? Player.seekStarted : Player.started)));
+      if (Player.started && !document.body.dataset.firstFrame) document.body.dataset.firstFrame = ms;
+      else if (Player.seekTarget !== null && Math.abs(meta.mediaTime - Player.seekTarget) < 0.5) {
+        document.body.dataset.seekFrame = ms;
+        Player.seekTarget = null;
+      }
       video.requestVideoFrameCallback(onFrame);
     };
     video.requestVideoFrameCallback(onFrame);

@@ -140,10 +140,11 @@ class ArchiveOps:
     def stream_source(self, drive_id: int) -> StreamSource:
         """The drive as a :class:`StreamSource`: the segments of the drive and of every drive it is
         coded against, taken now (a snapshot: the producer thread never opens the catalogue), and
-        the archive's checked decoder (every random-access run compared with the encoder's digest).
-        Chunks are one random-access period long (24 frames when the drive has none)."""
+        the archive's checked decoder (every random-access run compared with the encoder's digest),
+        run in a thread of its own up to 8 frames ahead of the encoder. Chunks are one
+        random-access period long (24 frames when the drive has none)."""
         from egovid.core.video import ColourTags
-        from egovid.dashcam.extract import SegmentSnapshot, drive_frames, reference_segments
+        from egovid.dashcam.extract import SegmentSnapshot, drive_frames, read_ahead, reference_segments
 
         d = self._drive(drive_id)
         ar, fleet = self._open()
@@ -154,7 +155,8 @@ class ArchiveOps:
         meta = fleet.meta(d.id)
 
         def frames(first: int) -> Iterator[np.ndarray]:
-            return drive_frames(snapshot, d, first, d.frames)
+            # decoded in a thread of its own, a few frames ahead: decoding overlaps the encoder
+            return read_ahead(drive_frames(snapshot, d, first, d.frames), 8)
 
         return StreamSource(d.id, d.width, d.height, d.fps, d.frames, chunk, frames,
                             ColourTags(**meta.colour) if meta.colour else None)  # fmt: skip

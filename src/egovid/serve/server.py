@@ -10,6 +10,7 @@ from pathlib import Path
 from egovid.core.errors import EgovidError
 from egovid.serve.access import is_loopback, new_token
 from egovid.serve.app import ServeConfig, create_app
+from egovid.serve.archive_ops import ArchiveOps
 
 KINDS = ("fpv", "voeval")
 
@@ -71,11 +72,16 @@ def serve(config: ServeConfig, say: Callable[[str], None] = print) -> None:
     import uvicorn
 
     config = check_config(config)
-    sock = bind(config.host, config.port)
+    ops = ArchiveOps(config.archive)  # a bad archive is an error before anything listens
+    try:
+        sock = bind(config.host, config.port)
+    except BaseException:
+        ops.close()
+        raise
     port = sock.getsockname()[1]
     config = ServeConfig(**{**config.__dict__, "port": port})
     try:
-        app = create_app(config)
+        app = create_app(config, ops)
         mode = "read-only" if config.read_only else "changes allowed (POST with the token)"
         say(f"serving {address(config, port)} ({config.archive}, {mode})")
         if not is_loopback(config.host):

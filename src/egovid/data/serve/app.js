@@ -213,14 +213,14 @@
   const video = $("video");
   const Player = {
     drive: null, manifest: null, track: null, ms: null, sb: null, gen: 0, busy: false, abort: null,
-    failures: 0, started: 0, seekTarget: null, seekStarted: 0,
+    failures: 0, started: 0, seekTarget: null, seekStarted: 0, appendChain: Promise.resolve(),
 
     chunkAt(t) { const m = this.manifest; return Math.min(m.chunks - 1, Math.max(0, Math.floor((t * m.fps + 1e-6) / m.chunk_frames))); },
     chunkStart(k) { return (k * this.manifest.chunk_frames) / this.manifest.fps; },
     buffered(t) {
       const b = this.sb ? this.sb.buffered : null;
       if (!b) return false;
-      for (let i = 0; i < b.length; i++) if (b.start(i) <= t + 0.02 && t + 0.02 < b.end(i)) return true;
+      for (let i = 0; i < b.length; i++) if (b.start(i) <= t + 0.02 && t < b.end(i)) return true;
       return false;
     },
 
@@ -270,6 +270,7 @@
     stop() {
       if (this.abort) this.abort.abort();
       this.abort = null; this.busy = false; this.sb = null; this.manifest = null; this.track = null; this.failures = 0;
+      this.appendChain = Promise.resolve();
       if (this.ms) { video.removeAttribute("src"); video.load(); }
       this.ms = null;
     },
@@ -294,17 +295,24 @@
       return { codec: r.headers.get("x-egovid-codec") || 'video/mp4; codecs="avc1.42c01f"', data: await r.arrayBuffer() };
     },
 
-    append(k, data, gen) {
-      return new Promise((ok, fail) => {
+    append(k, data, gen) {  // appends run one after another, each once the buffer is idle
+      const run = async () => {
         const sb = this.sb;
-        if (!sb || gen !== this.gen) { ok(); return; }
-        const done = () => { sb.removeEventListener("error", bad); ok(); };
-        const bad = () => { sb.removeEventListener("updateend", done); fail(new Error("the browser could not decode chunk " + k)); };
-        sb.addEventListener("updateend", done, { once: true });
-        sb.addEventListener("error", bad, { once: true });
-        sb.timestampOffset = this.chunkStart(k);
-        sb.appendBuffer(data);
-      });
+        if (!sb || gen !== this.gen) return;
+        while (sb.updating) await new Promise((ok) => sb.addEventListener("updateend", ok, { once: true }));
+        if (gen !== this.gen || this.sb !== sb) return;
+        await new Promise((ok, fail) => {
+          const done = () => { sb.removeEventListener("error", bad); ok(); };
+          const bad = () => { sb.removeEventListener("updateend", done); fail(new Error("the browser could not decode chunk " + k)); };
+          sb.addEventListener("updateend", done, { once: true });
+          sb.addEventListener("error", bad, { once: true });
+          sb.timestampOffset = this.chunkStart(k);
+          sb.appendBuffer(data);
+        });
+      };
+      const p = this.appendChain.then(run, run);
+      this.appendChain = p.catch(() => {});
+      return p;
     },
 
     async pump() {  // keep BUFFER_AHEAD seconds ready; one request at a time
@@ -322,8 +330,16 @@
       this.busy = true;
       try {
         const b = this.sb.buffered;
-        if (b.length && b.start(0) < now - KEEP_BEHIND - 5 && !this.sb.updating) {
-          await new Promise((ok) => { this.sb.addEventListener("updateend", ok, { once: true }); this.sb.remove(0, now - KEEP_BEHIND); });
+        if (b.length && b.start(0) < now - KEEP_BEHIND - 5) {
+          const sb = this.sb;
+          const drop = async () => {
+            while (sb.updating) await new Promise((ok) => sb.addEventListener("updateend", ok, { once: true }));
+            if (this.sb !== sb) return;
+            await new Promise((ok) => { sb.addEventListener("updateend", ok, { once: true }); sb.remove(0, now - KEEP_BEHIND); });
+          };
+          const p = this.appendChain.then(drop, drop);
+          this.appendChain = p.catch(() => {});
+          await p;
         }
         const got = await this.fetchChunk(k, gen);
         if (got && gen === this.gen) await this.append(k, got.data, gen);

@@ -178,6 +178,28 @@ def wait_js(page, expr: str, timeout: float = 60.0):
     return got
 
 
+def figures_of_find_and_forget(page, shots: Path) -> None:
+    """Screenshots for the docs: a circle drawn on the map and what it found; the forget dialog of
+    the root drive (cancelled: nothing changes)."""
+    page.evaluate("video.pause()")
+    box = page.locator("#map").bounding_box()
+    pt = page.evaluate("egovid.map.latLngToContainerPoint([egovid.Player.track.lat[10], egovid.Player.track.lon[10]])")
+    page.click("#find-circle")
+    x, y = box["x"] + pt["x"], box["y"] + pt["y"]
+    page.mouse.move(x, y)
+    page.mouse.down()
+    page.mouse.move(x + 25, y + 10, steps=5)
+    page.mouse.up()
+    wait_js(page, "document.querySelectorAll('#found li').length > 0")
+    page.screenshot(path=str(shots / "serve_find.png"))
+    page.click("#drives li:has-text('mon')")
+    wait_js(page, "video.currentTime > 0.2")
+    page.click("#forget")
+    page.wait_for_selector("#confirm[open]")
+    page.screenshot(path=str(shots / "serve_forget.png"))
+    page.click("#confirm-cancel")
+
+
 def browser_latency(archive: Path, drive: str, trials: int, rng, shots: Path | None) -> dict:
     from playwright.sync_api import sync_playwright
 
@@ -215,6 +237,7 @@ def browser_latency(archive: Path, drive: str, trials: int, rng, shots: Path | N
                 if shots is not None and trial == 0:
                     time.sleep(1.5)
                     page.screenshot(path=str(shots / "serve_playing.png"))
+                    figures_of_find_and_forget(page, shots)
                 page.close()
             with tempfile.TemporaryDirectory() as tmp:  # the peer: extract the same stretch first
                 t = time.perf_counter()

@@ -175,7 +175,7 @@ class StreamService:
         settings: EncodeSettings = EncodeSettings(),
         cache_bytes: int = 256 * 2**20,
         max_producers: int = 6,
-        ahead: int = 4,
+        ahead: int = 2,
         reach: int = 3,
         idle_s: float = 20.0,
     ) -> None:

@@ -7,7 +7,9 @@ memory while streaming an hour-long drive.
    moment → the first frame the browser presents (requestVideoFrameCallback). Seek: while it
    plays, a seek to a random moment nothing was produced near → the first frame presented there.
    Peer, in the same run: what a user had before, `egovid dashcam extract` of the stretch the
-   first chunk covers (then a player opens the file), wall time of the command.
+   first chunk covers (then a player opens the file), wall time of the command. With each: the
+   CPU seconds the server used from the click to that frame (what an idle machine needs, at most,
+   as its decode and encode threads overlap; wall times on a busy shared machine are not).
 2. **Viewers at once** (target: each stream produced ≥ 1.2× real time with 4 viewers): 1, 2, 3
    and 4 HTTP clients, each fetching a different stretch of the joint drive (no shared cache) as
    fast as the server produces it, after a warm-up chunk; the real-time factor of each viewer =
@@ -200,10 +202,17 @@ def figures_of_find_and_forget(page, shots: Path) -> None:
     page.click("#confirm-cancel")
 
 
+def cpu_s(ps) -> float:
+    """CPU seconds (user + system) the server process and its threads have used."""
+    t = ps.cpu_times()
+    return t.user + t.system
+
+
 def browser_latency(archive: Path, drive: str, trials: int, rng, shots: Path | None) -> dict:
+    import psutil
     from playwright.sync_api import sync_playwright
 
-    first, seek, peer = [], [], []
+    first, seek, peer, first_cpu, seek_cpu = [], [], [], [], []
     with sync_playwright() as p:
         ctx = p.chromium.launch_persistent_context(
             tempfile.mkdtemp(prefix="egovid-bench-chromium-"),
@@ -213,15 +222,18 @@ def browser_latency(archive: Path, drive: str, trials: int, rng, shots: Path | N
             viewport={"width": 1280, "height": 800},
         )
         for trial in range(trials):
-            with server(archive) as (url, _):
+            with server(archive) as (url, proc):
+                ps = psutil.Process(proc.pid)
                 drives = {d["name"]: d for d in get_json(url + "api/drives")["drives"]}
                 d = drives[drive]
                 page = ctx.new_page()
                 page.goto(url)
                 wait_js(page, "document.body.dataset.ready === '1'")
                 t0 = float(rng.uniform(0, d["duration"] - 4))
+                c0 = cpu_s(ps)
                 page.evaluate(f"egovid.Player.open(egovid.S.drives.find(x => x.id === {d['id']}), {t0})")
                 first.append(float(wait_js(page, "document.body.dataset.firstFrame")) / 1000)
+                first_cpu.append(cpu_s(ps) - c0)
                 wait_js(page, f"video.currentTime > {t0 + 0.5}")
                 produced = {int(t0 * d["fps"]) // 24 + i for i in range(-1, 7)}
                 for _ in range(2):  # two seeks per trial, each where nothing was produced
@@ -231,8 +243,10 @@ def browser_latency(archive: Path, drive: str, trials: int, rng, shots: Path | N
                     k = int(rng.choice(far))
                     produced |= {k + i for i in range(-1, 7)}
                     ts = (k * 24 + float(rng.uniform(0, 23))) / d["fps"]
+                    c0 = cpu_s(ps)
                     page.evaluate(f"egovid.Player.seek({ts})")
                     seek.append(float(wait_js(page, "document.body.dataset.seekFrame")) / 1000)
+                    seek_cpu.append(cpu_s(ps) - c0)
                     wait_js(page, f"video.currentTime > {ts + 0.3}")
                 if shots is not None and trial == 0:
                     time.sleep(1.5)
@@ -255,7 +269,13 @@ def browser_latency(archive: Path, drive: str, trials: int, rng, shots: Path | N
                 )
                 peer.append(time.perf_counter() - t)
         ctx.close()
-    return {"first_frame_s": first, "seek_s": seek, "extract_stretch_s": peer}
+    return {
+        "first_frame_s": first,
+        "seek_s": seek,
+        "extract_stretch_s": peer,
+        "server_cpu_s_to_first_frame": first_cpu,
+        "server_cpu_s_to_seek_frame": seek_cpu,
+    }
 
 
 def _viewer(url: str, drive_id: int, m: dict, k0: int, count: int, factors: list, i: int) -> None:
@@ -366,6 +386,8 @@ def main() -> None:
             "first_frame_median_s": float(np.median(lat["first_frame_s"])),
             "seek_median_s": float(np.median(lat["seek_s"])),
             "extract_stretch_median_s": float(np.median(lat["extract_stretch_s"])),
+            "server_cpu_s_to_first_frame_median": float(np.median(lat["server_cpu_s_to_first_frame"])),
+            "server_cpu_s_to_seek_frame_median": float(np.median(lat["server_cpu_s_to_seek_frame"])),
             "target_s": 1.5,
             "stolen_s": (stolen_seconds() - s0) if s0 is not None else None,
             "load_average_1min": os.getloadavg()[0],

@@ -10,6 +10,7 @@ import fcntl
 import io
 import os
 import shutil
+import time
 from pathlib import Path
 
 import av
@@ -100,6 +101,59 @@ def test_chunk_cache_keeps_the_most_recent_within_its_bound():
     c.get(2)  # used: kept over 3
     c.put(5, bytes(30))
     assert c.get(2) is not None and c.get(3) is None
+
+
+def _fake_source(drive_id: int = 1, chunks: int = 40, fail_at: int | None = None):
+    """A 64x48 drive of ``chunks`` chunks of 4 frames; frame i is flat grey level i % 200 (raises
+    at frame ``fail_at``)."""
+    from egovid.serve.streams import StreamSource
+
+    n = 4 * chunks
+
+    def frames(first: int):
+        for i in range(first, n):
+            if i == fail_at:
+                raise RuntimeError("bitstream damaged here")
+            yield np.full((72, 64), 16 + i % 200, np.uint8)
+
+    return StreamSource(drive_id, 64, 48, 10.0, n, 4, frames)
+
+
+def test_a_seek_withdraws_the_viewers_demand_from_the_old_producer():
+    from egovid.serve.streams import StreamService
+
+    svc = StreamService(lambda d: _fake_source(d), ahead=2, idle_s=30)
+    try:
+        svc.chunk(1, 0, viewer="a")
+        old = next(p for p in svc._producers if p.source.drive_id == 1)
+        assert old.want == 2
+        svc.chunk(1, 20, viewer="a")  # a seek: another producer
+        assert old.want == -1 and len([p for p in svc._producers if not p.done]) == 2
+        time.sleep(0.5)
+        assert old.next <= 3  # stopped after the chunk under way
+        k = old.next
+        svc.chunk(1, k, viewer="b")  # another viewer's demand keeps it going
+        assert old.want == k + 2
+    finally:
+        svc.close()
+
+
+def test_a_failing_producer_answers_its_error_and_the_rest_goes_on():
+    from egovid.serve.streams import StreamError, StreamService
+
+    svc = StreamService(lambda d: _fake_source(d, fail_at=10 if d == 1 else None), max_producers=2)
+    try:
+        assert len(svc.chunk(1, 0)) > 0
+        with pytest.raises(StreamError, match="bitstream damaged here") as exc:
+            svc.chunk(1, 2)  # frames 8-11
+        assert exc.value.status == 500
+        assert len(svc.chunk(2, 5)) > 0 and len(svc.chunk(2, 30)) > 0 and len(svc.chunk(2, 15)) > 0
+        assert svc.stats()["producers"] <= 2
+        with pytest.raises(StreamError) as exc:
+            svc.chunk(2, 40)
+        assert exc.value.status == 404
+    finally:
+        svc.close()
 
 
 def test_encoded_chunk_plays_back_its_frames():
@@ -350,3 +404,19 @@ def test_serve_cli_refuses_bad_input(serve_archive, tmp_path):
     assert_one_error(run_cli("serve", tmp_path), "not an egovid archive")
     assert_one_error(run_cli("serve", serve_archive, "--token", "short"), "16 characters")
     assert_one_error(run_cli("serve", serve_archive, "--fpv", tmp_path / "none"), "report folder")
+
+
+def test_an_archive_on_postgresql_serves_the_same(serve_archive, pg_url, tmp_path):
+    """The catalogue in PostgreSQL (each server thread its own connection): drives, track, a chunk."""
+    root = tmp_path / "pg-archive"
+    assert run_cli("dashcam", "init", root, "--db", pg_url).returncode == 0
+    video = serve_archive.parent / "monday.mp4"
+    r = run_cli("dashcam", "ingest", root, video, "--gps", video.with_suffix(".gpx"))
+    assert r.returncode == 0, r.stderr
+    with _client(root) as c:
+        (d,) = c.get("/api/drives").json()["drives"]
+        assert d["name"] == "monday" and d["modes"] == ["intra"]
+        with concurrent.futures.ThreadPoolExecutor(3) as pool:  # several threads, several connections
+            got = list(pool.map(lambda k: c.get(f"/api/drives/{d['id']}/chunks/{k}.mp4"), range(3)))
+        assert all(g.status_code == 200 and len(_decode(g.content)) > 0 for g in got)
+        assert len(c.get(f"/api/drives/{d['id']}/track").json()["t"]) > 2

@@ -10,6 +10,7 @@ Routes (``{id}``: a drive's catalogue id; every change is a POST, see :mod:`egov
 ``GET /api/drives/{id}/track``             GPS fixes on the video clock with speed and acceleration
 ``GET /api/drives/{id}/stream``            the stream's manifest (fps, size, chunk length)
 ``GET /api/drives/{id}/chunks/{k}.mp4``    chunk k, fragmented MP4 (H.264), produced on the fly
+                                           (``?v=VIEWER``: the page's id; see StreamService.chunk)
 ``GET /api/find``                          ``near=LAT,LON&radius=M``, ``bbox=W,S,E,N``, ``from``/``to``
 ``POST /api/clips``                        ``{drive, t, before, after}`` → the clip's download links
 ``GET /api/clips/{clip}/{file}``           the clip (.mp4) or its GPS track (.gpx), as attachments
@@ -219,7 +220,8 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
         return respond(await call(streams.manifest, drive_id(request)))
 
     async def chunk(request: Request) -> Response:
-        got = await call(streams.chunk, drive_id(request), int(request.path_params["k"]))
+        viewer = request.query_params.get("v", "")[:64]
+        got = await call(streams.chunk, drive_id(request), int(request.path_params["k"]), viewer=viewer)
         if isinstance(got, Response):
             return got
         from egovid.serve.fragments import mime_codec

@@ -106,12 +106,17 @@ class Producer:
     def __init__(self, service: StreamService, source: StreamSource, generation: int, first: int) -> None:
         self.service, self.source, self.generation = service, source, generation
         self.next = first  # the chunk it produces next
-        self.want = first  # produce up to this chunk, then wait
+        self.wants: dict[str, int] = {}  # viewer -> produce up to this chunk for it
         self.asked = time.monotonic()
         self.error: StreamError | None = None
         self.done = False
         self.stop = False
         self.thread = threading.Thread(target=self._run, name=f"egovid-stream-{source.drive_id}-{first}", daemon=True)
+
+    @property
+    def want(self) -> int:
+        """The last chunk some viewer still wants of it (−1: none)."""
+        return max(self.wants.values(), default=-1)
 
     def key(self, k: int) -> tuple[int, int, int]:
         return (self.source.drive_id, self.generation, k)
@@ -231,10 +236,12 @@ class StreamService:
         p.thread.start()
         return p
 
-    def chunk(self, drive_id: int, k: int, timeout: float = 60.0) -> bytes:
+    def chunk(self, drive_id: int, k: int, timeout: float = 60.0, viewer: str = "") -> bytes:
         """Chunk ``k`` of a drive (fragmented MP4 bytes), waiting up to ``timeout`` seconds for it
-        to be produced. Raises :class:`StreamError` (404: no such chunk; 500: the stream failed;
-        504: not produced in time)."""
+        to be produced. ``viewer``: who asks (a page's random id; "" for anonymous): a viewer's
+        request withdraws its demand from every other producer, so a seek stops the production
+        for the old position after the chunk under way. Raises :class:`StreamError` (404: no
+        such chunk; 500: the stream failed; 504: not produced in time)."""
         src = self.source(drive_id)
         if not 0 <= k < src.chunks:
             raise StreamError(f"drive {drive_id} has chunks 0-{src.chunks - 1}, not {k}", 404)
@@ -247,7 +254,11 @@ class StreamService:
                 if data is not None:
                     return data
                 p = self._producer_for(src, k)
-                p.want = max(p.want, k + self.ahead)
+                if viewer:
+                    for q in self._producers:
+                        if q is not p:
+                            q.wants.pop(viewer, None)
+                p.wants[viewer] = max(p.wants.get(viewer, -1), k + self.ahead)
                 p.asked = time.monotonic()
                 self.cond.notify_all()
                 if p.error is not None:

@@ -6,6 +6,7 @@
   const COLOURS = ["#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1", "#ff9da7", "#9c755f", "#bab0ac"];
   const BUFFER_AHEAD = 8;   // seconds of video kept ready ahead of the playhead
   const KEEP_BEHIND = 30;   // seconds kept behind it (older data is removed from the buffer)
+  const VIEWER = Math.random().toString(36).slice(2, 12);  // this page, for the server's producers
   const S = { info: null, overview: null, drives: [], shown: [], lines: new Map(), findLayer: null, mode: null };
 
   // -- small helpers -----------------------------------------------------------------------------
@@ -285,7 +286,7 @@
 
     async fetchChunk(k, gen) {
       this.abort = new AbortController();
-      const r = await fetch(`/api/drives/${this.drive.id}/chunks/${k}.mp4`, { signal: this.abort.signal });
+      const r = await fetch(`/api/drives/${this.drive.id}/chunks/${k}.mp4?v=${VIEWER}`, { signal: this.abort.signal });
       if (gen !== this.gen) return null;
       if (!r.ok) {
         let msg = r.status + " " + r.statusText;

@@ -156,6 +156,32 @@ def test_a_failing_producer_answers_its_error_and_the_rest_goes_on():
         svc.close()
 
 
+def test_decoding_a_long_segment_keeps_no_frame_per_run():
+    """Streaming an hour-long drive decodes one segment of thousands of random-access runs: the
+    decoder used to keep each run's last anchor (one padded frame per run, 6 GB for an hour of
+    720p). Memory after 30 runs is what it was after 5."""
+    import tracemalloc
+
+    from egovid.dashcam.codec import segment as codec
+    from egovid.dashcam.codec import vpx
+
+    w, h, runs = 64, 48, 30
+    base = np.random.default_rng(0).integers(0, 255, (h * 3 // 2, w + 200), dtype=np.uint8)
+    frames = (np.ascontiguousarray(base[:, k % 200 : k % 200 + w]) for k in range(24 * runs))
+    blob = codec.encode_segment(frames, w, h, vpx.EncoderSettings(q=40, speed=8, gop=8, refresh=24)).blob
+    tracemalloc.start()
+    try:
+        marks = {}
+        for i, _ in enumerate(codec.decode_segment(blob)):
+            if i in (5 * 24, 24 * runs - 2):
+                marks[i] = tracemalloc.get_traced_memory()[0]
+    finally:
+        tracemalloc.stop()
+    grown = marks[24 * runs - 2] - marks[5 * 24]
+    frame = w * h * 3 // 2  # the leak was one (padded) frame per run: 25 frames here
+    assert grown < (runs - 5) * frame / 2, f"{grown} bytes more after {runs - 5} more runs"
+
+
 def test_encoded_chunk_plays_back_its_frames():
     rng = np.random.default_rng(0)
     ramp = np.tile(np.linspace(16, 235, W, dtype=np.uint8), (H * 3 // 2, 1))

@@ -41,7 +41,7 @@ from egovid.core.video import iter_frames
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.codec import vpx
-from egovid.dashcam.ingest import IngestOptions, ingest
+from egovid.dashcam.ingest import IngestOptions, ingest_videos
 from egovid.dashcam.ingest.options import PRESETS
 from egovid.synth.drive import DriveSpec, Light, render_drive, simulate
 
@@ -114,8 +114,8 @@ def archive_point(job: tuple) -> dict:
     try:
         ar = Archive.create(root)
         opts = IngestOptions.from_preset(preset, q=q, aligner=aligner, measure_savings=True)
-        ingest(ar, ref_video, None, opts, name="ref")
-        rep = ingest(ar, new_video, None, opts, name="new")
+        ingest_videos(ar, [ref_video], name="ref", options=opts)
+        (rep,) = ingest_videos(ar, [new_video], name="new", options=opts).reports
         segs = ar.catalogue.segments(rep.drive_id)
         frames = np.array([g.frame_end - g.frame_start for g in segs], float)
         joint = [g for g in segs if g.mode == "joint"]

@@ -349,7 +349,7 @@ def test_a_backup_that_cannot_be_written_is_said_and_never_left_behind(tmp_path,
     import errno
 
     from egovid.core.errors import EgovidError
-    from egovid.dashcam import check as integrity
+    from egovid.dashcam.archive import catalogue_file as integrity
     from egovid.dashcam.archive.catalogue import SqliteCatalogue
 
     cat = SqliteCatalogue(tmp_path / "catalogue.sqlite", create=True)

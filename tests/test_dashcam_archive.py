@@ -15,7 +15,7 @@ from egovid.core.video import iter_frames
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.extract import extract_video
-from egovid.dashcam.ingest import IngestOptions, ingest
+from egovid.dashcam.ingest import IngestOptions, ingest_videos
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
 from conftest import _wait_for, assert_one_error, run_cli
@@ -257,7 +257,8 @@ def test_kill_during_ingest_leaves_archive_consistent(archive, drives, tmp_path)
     extract_video(ar, ar.drive_or_fail("a"), tmp_path / "a.mkv")
     assert sum(1 for _ in iter_frames(tmp_path / "a.mkv")) == ar.catalogue.drive("a").frames
     # And the same drive can be ingested afterwards.
-    rep = ingest(ar, video, gps, IngestOptions(measure_savings=False), name="after-crash")
+    opts = IngestOptions(measure_savings=False)
+    (rep,) = ingest_videos(ar, [video], gps=gps, options=opts, name="after-crash").reports
     assert rep.pieces[0].mode == "joint"
 
 

@@ -49,6 +49,30 @@ def test_nmea_checksums_void_and_dead_reckoning_fixes_are_dropped(tmp_path):
     assert g.gaps(3.0) == [(t0 + 1, t0 + 5)]
 
 
+def test_a_log_file_and_a_text_track_merge_rmc_and_gga_alike(tmp_path):
+    """The same sentences in a log file and as samples of a video's text track give the same fixes:
+    one merge rule (an RMC and a GGA of one second make one fix, a GGA alone adds its position)."""
+    from egovid.dashcam.route.embedded import fixes_from_nmea_samples
+
+    lines = [
+        _nmea("GPRMC,080000.00,A,4025.4220,N,08655.2720,W,20.0,90.0,040526,,,A"),
+        _nmea("GPGGA,080000.00,4025.4221,N,08655.2721,W,1,09,0.9,190.0,M,-33.0,M,,"),  # RMC's second: RMC wins
+        _nmea("GPGGA,080001.00,4025.4220,N,08655.2600,W,1,09,0.9,190.0,M,-33.0,M,,"),
+        _nmea("GPGGA,080001.00,4025.4290,N,08655.2600,W,1,09,0.9,190.0,M,-33.0,M,,"),  # same second: first wins
+        _nmea("GPRMC,080002.00,A,4025.4220,N,08655.2500,W,20.0,90.0,040526,,,A"),
+        _nmea("GPRMC,080003.00,A,4025.4220,N,08655.2400,W,20.0,,040526,,,A"),  # no course
+    ]
+    p = tmp_path / "log.nmea"
+    p.write_text("\n".join(lines) + "\n")
+    log = read_track(p)
+    inside = fixes_from_nmea_samples([(0.1 * k, ln) for k, ln in enumerate(lines)]).track
+    t0 = dt.datetime(2026, 5, 4, 8, 0, 0, tzinfo=dt.UTC).timestamp()
+    np.testing.assert_allclose(log.t - t0, [0, 1, 2, 3])
+    for k in ("t", "lat", "lon", "speed", "bearing"):
+        np.testing.assert_array_equal(getattr(log, k), getattr(inside, k), err_msg=k)
+    assert log.lat[0] == pytest.approx(40 + 25.422 / 60) and log.lat[1] == pytest.approx(40 + 25.422 / 60)
+
+
 def test_gpx_and_csv_and_derived_speed(tmp_path):
     t0 = 1777881600.0
     # 10 m/s due east for 20 s, no speed column: derived from positions.
@@ -513,3 +537,16 @@ def test_scale_refiner_finds_the_frame_level_with_the_new_one():
     assert got.min() >= 0 and got.max() <= 17
     assert np.mean(got == truth) >= 0.85 and np.max(np.abs(got - truth)) <= 1
     assert np.all(got[12:16] == got[11]) and np.all(np.diff(got) >= 0)
+
+
+def test_a_track_covering_less_than_80_percent_of_the_video_is_refused():
+    """The stages' coverage check is the clock's rule (hand-computed spans)."""
+    from egovid.core.errors import EgovidError
+    from egovid.dashcam.ingest.stages import check_coverage
+    from egovid.dashcam.route.tracks import GpsTrack
+
+    t = 1777881600.0 + np.arange(101.0)  # fixes over 100 s
+    track = GpsTrack(t, np.full(101, 40.0), np.full(101, -86.0), np.ones(101), np.zeros(101), "log.gpx")
+    check_coverage(track, t[10] + np.arange(0.0, 100.1, 0.5), "v.mp4", "log.gpx")  # 90 of 100 s
+    with pytest.raises(EgovidError, match=r"covers 50% of video v\.mp4"):
+        check_coverage(track, t[50] + np.arange(0.0, 100.1, 0.5), "v.mp4", "log.gpx")

@@ -115,7 +115,7 @@ def _dashcam(folder: Path, quick: bool) -> None:
 
     from egovid.dashcam.archive.store import Archive
     from egovid.dashcam.extract import extract_video
-    from egovid.dashcam.ingest import IngestOptions, ingest
+    from egovid.dashcam.ingest import IngestOptions, ingest_videos
     from egovid.dashcam.report import archive_report
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
@@ -136,7 +136,7 @@ def _dashcam(folder: Path, quick: bool) -> None:
     shutil.rmtree(folder / "archive", ignore_errors=True)
     ar = Archive.create(folder / "archive")
     for video, gps, _ in (monday, tuesday):
-        rep = ingest(ar, video, gps, IngestOptions(measure_savings=True))
+        (rep,) = ingest_videos(ar, [video], gps=gps, options=IngestOptions(measure_savings=True)).reports
         for p in rep.pieces:
             saving = f", {100 * p.saving:.1f} % smaller than standalone VP9" if p.saving is not None else ""
             console.print(

@@ -114,9 +114,8 @@ def synth_drive(
     Writes OUT, OUT-stem.gpx (or .nmea / .gps.csv) and OUT-stem.truth.csv (frame positions).
     Example: egovid synth drive monday.mp4 --light morning --stop 120:3 --seed 1
     """
-    import datetime as dt
-
     from egovid.core.errors import EgovidError
+    from egovid.core.times import parse_iso
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
     choice(gps, "--gps", ("gpx", "nmea", "csv"))
@@ -162,7 +161,7 @@ def synth_drive(
             number(b, "--lane-change end", lo=a, hi=10_000, unit="m"),
         )
     try:
-        t0 = dt.datetime.fromisoformat(start.replace("Z", "+00:00"))
+        t0 = parse_iso(start)
     except ValueError:
         raise EgovidError(f"--start {start!r} is not ISO 8601", "write e.g. 2026-05-04T08:00:00Z") from None
     spec = DriveSpec(
@@ -174,7 +173,7 @@ def synth_drive(
         light=light_preset,
         vehicles=vehicles,
         seed=seed,
-        start_time=t0 if t0.tzinfo else t0.replace(tzinfo=dt.UTC),
+        start_time=t0,
     )
     with progress_bar("rendering", None) as update:
         video, track, truth = render_drive(

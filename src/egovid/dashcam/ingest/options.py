@@ -7,9 +7,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from egovid.core.errors import EgovidError
+from egovid.dashcam.align import ALIGNERS
 from egovid.dashcam.codec import vpx
 
-ALIGNERS = ("orb", "orb-plain", "seqslam", "gps")
 BASELINE_ALIGN = ("none", "gain", "similarity")
 
 #: Named settings (``--preset``); explicit options override them. Measured in

@@ -5,7 +5,7 @@
 
     decode_once ──► [first 24 frames: light] ──► choose_baseline
          │                                            │
-         └──► small grey ──► StreamingAlignment ──► match k final ──► baseline k (older drive,
+         └──► small grey ──► ALIGNERS[name]     ──► match k final ──► baseline k (older drive,
                                                                           decoded forward once)
                                                                               │
     frame k (held until its match is final) ─────────────────────────► VP9 encode (+ lockstep
@@ -36,12 +36,12 @@ import cv2
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.dashcam.align import ALIGNERS
 from egovid.dashcam.align.illumination import frame_features
 from egovid.dashcam.align.orb import OrbScorer, small_gray, warm_up, wide_window
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.codec import vpx
 from egovid.dashcam.extract import FrameSource
-from egovid.dashcam.ingest.align import StreamingAlignment
 from egovid.dashcam.ingest.frames import InputFrame, RefFrames
 from egovid.dashcam.ingest.options import IngestOptions
 from egovid.dashcam.ingest.records import DriveTrack, EncodedPiece, PiecePlan
@@ -195,7 +195,7 @@ class _PieceRun:
         try:
             for i in range(head):
                 self.head.append(self.analyse(self.next_frame()))
-                if i == 0 and self.opts.aligner in ("orb", "orb-plain"):
+                if i == 0 and ALIGNERS[self.opts.aligner].orb_search:
                     self._start_prefetch()
             self.ref = choose_baseline(self.illum_sum / self.illum_n, self.piece.candidates)
         finally:
@@ -245,8 +245,7 @@ class _PieceRun:
                 self.refs = self.prefetch.take() if self.prefetch is not None else self._open_refs(ref)
                 prior = self._prior(ref)
                 speed_ref = np.abs(np.gradient(ref.positions.astype(float)) * ref.fps) if m > 1 else np.zeros(m)
-                aligner = StreamingAlignment(
-                    self.opts.aligner,
+                aligner = ALIGNERS[self.opts.aligner](
                     self.refs,
                     prior,
                     self.track.speed[f0:f1],
@@ -361,7 +360,7 @@ def encode_piece(
     clock = clock if clock is not None else {}
     t_start = time.perf_counter()
     run = _PieceRun(source, piece, frames, track, fps, size, opts, clock)
-    if piece.candidates and opts.aligner in ("orb", "orb-plain"):
+    if piece.candidates and ALIGNERS[opts.aligner].orb_search:
         warm_up()  # while the first frames are decoded for the choice of the baseline
     run.choose()
     settings = opts.encoder_settings(fps)

@@ -174,8 +174,8 @@ class ArchiveOps:
         seconds), each with its drive id and its start and end on the drive's video clock (s)."""
         from egovid.dashcam.find import Query, search
 
-        _ar, fleet = self._open()
-        found = search(fleet, Query(near=near, radius=radius, bbox=bbox, t_from=t_from, t_to=t_to))
+        ar, fleet = self._open()
+        found = search(ar, Query(near=near, radius=radius, bbox=bbox, t_from=t_from, t_to=t_to))
         ids = {d.name: d for d in fleet.live_drives()}
         out = []
         for s in found:
@@ -194,26 +194,24 @@ class ArchiveOps:
         if not (np.isfinite(t) and 0 <= t <= d.frames / d.fps):
             raise EgovidError(f"second {t} is not in drive {d.name}", f"give 0-{d.frames / d.fps:.1f} s")
         at = float(futc[min(int(t * d.fps), len(futc) - 1)])
-        plan = plan_clip(ar, fleet, at=at, drive=str(d.id), before=before, after=after)
-        return write_clip(ar, fleet, plan, out)
+        plan = plan_clip(ar, at=at, drive=str(d.id), before=before, after=after)
+        return write_clip(ar, plan, out)
 
     # -- changes ------------------------------------------------------------------------------------
     def set_lock(self, drive_id: int, locked: bool, note: str | None = None) -> dict:
         """``dashcam lock`` / ``unlock`` one drive."""
-        ar, fleet = self._open()
-        with ar.catalogue.transaction():
-            d = fleet.live_drive(str(int(drive_id)))
-            fleet.set_lock(d.id, locked, note if locked else None)
+        from egovid.dashcam.forget import set_lock
+
+        ar, _ = self._open()
+        (d,) = set_lock(ar, [str(int(self._drive(drive_id).id))], locked, note)
         return {"id": d.id, "name": d.name, "locked": locked, "lock_note": note if locked else None}
 
     def forget(self, drive_ids: list[int], *, dry_run: bool) -> dict:
         """``dashcam forget`` the drives (``dry_run``: only what it would do: the drives forgotten,
         those kept as hidden references and the live drives coded against them, bytes freed)."""
-        from egovid.dashcam.forget import choose, forget_drives
+        from egovid.dashcam.forget import forget
 
         for i in drive_ids:
             self._drive(i)
-        ar, fleet = self._open()
-        chosen, _ = choose(ar, fleet, [str(int(i)) for i in drive_ids])
-        rep = forget_drives(ar, fleet, chosen, verify=True, dry_run=dry_run)
-        return rep.to_dict()
+        ar, _ = self._open()
+        return forget(ar, [str(int(i)) for i in drive_ids], verify=True, dry_run=dry_run).to_dict()

@@ -54,7 +54,7 @@ def serve(
     the network but the map tiles, by the browser, when online.
     """
     from egovid.cli.validate import input_folder
-    from egovid.dashcam.mapview import OSM_TILES
+    from egovid.dashcam.mapdata import tile_url
     from egovid.serve.server import ServeConfig
     from egovid.serve.server import serve as run_server
 
@@ -66,7 +66,7 @@ def serve(
         token=token,
         read_only=read_only,
         reports=[("fpv", p) for p in fpv] + [("voeval", p) for p in voeval],
-        tiles={"osm": OSM_TILES, "none": None}.get(tiles, tiles),
+        tiles=tile_url(tiles),
         cache_mb=cache_mb,
         max_height=max_height,
     )

@@ -8,7 +8,8 @@ chunk starts where decoding can start). A request for chunk *k* is answered from
 drive forward once (the archive's checked decoder: every random-access run is compared with the
 encoder's digest) and encodes chunk after chunk while some viewer wants them: it runs at most
 ``ahead`` chunks past the last one asked of it, then waits, and ends after ``idle_s`` seconds
-without demand. Memory is bounded: the cache by bytes, the producers by count (the one asked least
+without demand; a producer whose viewers all went elsewhere (a seek) stops at once, mid-chunk.
+Memory is bounded: the cache by bytes, the producers by count (the one asked least
 recently is stopped first), each holding a decoder and a few frames. An error in one producer
 (a damaged bitstream, a decoder failure) is kept and answered to the requests it serves; the
 other streams and the server go on.
@@ -138,7 +139,13 @@ class Producer:
             frames = src.frames(k * src.chunk_frames)
             while k < src.chunks and self._wait_for_demand(k):
                 n = min(src.chunk_frames, src.frames_total - k * src.chunk_frames)
-                batch = [next(frames) for _ in range(n)]
+                batch = []
+                while len(batch) < n:
+                    with svc.cond:
+                        gone = self.stop or self.want < k
+                    if gone:  # withdrawn mid-chunk (a seek): stop now
+                        return
+                    batch.append(next(frames))
                 data = encode_chunk(batch, src.width, src.height, src.fps, svc.settings, src.colour)
                 del batch
                 svc.cache.put(self.key(k), data)

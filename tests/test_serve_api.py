@@ -5,6 +5,7 @@ a damaged stream next to sound ones, find, clip, lock and forget through the API
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import datetime as dt
 import fcntl
 import io
@@ -119,8 +120,20 @@ def _fake_source(drive_id: int = 1, chunks: int = 40, fail_at: int | None = None
     return StreamSource(drive_id, 64, 48, 10.0, n, 4, frames)
 
 
+def _slow_source(drive_id: int):
+    """:func:`_fake_source` at 2 frames per second."""
+    src = _fake_source(drive_id)
+
+    def frames(first: int):
+        for f in src.frames(first):
+            time.sleep(0.5)
+            yield f
+
+    return dataclasses.replace(src, frames=frames)
+
+
 def test_a_seek_withdraws_the_viewers_demand_from_the_old_producer():
-    from egovid.serve.streams import StreamService
+    from egovid.serve.streams import StreamError, StreamService
 
     svc = StreamService(lambda d: _fake_source(d), ahead=2, idle_s=30)
     try:
@@ -128,12 +141,26 @@ def test_a_seek_withdraws_the_viewers_demand_from_the_old_producer():
         old = next(p for p in svc._producers if p.source.drive_id == 1)
         assert old.want == 2
         svc.chunk(1, 20, viewer="a")  # a seek: another producer
-        assert old.want == -1 and len([p for p in svc._producers if not p.done]) == 2
+        assert old.want == -1
         time.sleep(0.5)
-        assert old.next <= 3  # stopped after the chunk under way
-        k = old.next
-        svc.chunk(1, k, viewer="b")  # another viewer's demand keeps it going
-        assert old.want == k + 2
+        assert old.next <= 3  # it produces nothing more (it idles, then ends)
+        new = next(p for p in svc._producers if p is not old)
+        k = new.next
+        svc.chunk(1, k, viewer="b")  # a second viewer there
+        svc.chunk(1, 5, viewer="a")  # a leaves; b's demand keeps the producer going
+        assert new.wants == {"b": k + 2} and not new.done
+        # An earlier request of a viewer still waiting when it asks again was abandoned: it ends.
+        slow = StreamService(lambda d: _slow_source(d), ahead=2, idle_s=30)
+        try:
+            with concurrent.futures.ThreadPoolExecutor(2) as pool:
+                first = pool.submit(slow.chunk, 1, 0, 30.0, "c")
+                time.sleep(0.3)
+                second = pool.submit(slow.chunk, 1, 30, 30.0, "c")
+                with pytest.raises(StreamError) as exc:
+                    first.result(timeout=30)
+                assert exc.value.status == 409 and len(second.result(timeout=30)) > 0
+        finally:
+            slow.close()
     finally:
         svc.close()
 

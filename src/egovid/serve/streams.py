@@ -199,6 +199,7 @@ class StreamService:
         self._producers: list[Producer] = []
         self._sources: dict[int, StreamSource] = {}
         self._generation = 0
+        self._tickets: dict[str, int] = {}  # viewer -> number of its latest request
 
     def source(self, drive_id: int) -> StreamSource:
         """The drive's stream source (kept until :meth:`invalidate`)."""
@@ -247,15 +248,20 @@ class StreamService:
         """Chunk ``k`` of a drive (fragmented MP4 bytes), waiting up to ``timeout`` seconds for it
         to be produced. ``viewer``: who asks (a page's random id; "" for anonymous): a viewer's
         request withdraws its demand from every other producer, so a seek stops the production
-        for the old position after the chunk under way. Raises :class:`StreamError` (404: no
-        such chunk; 500: the stream failed; 504: not produced in time)."""
+        for the old position, and ends the wait of the viewer's earlier request (the page asks
+        for one chunk at a time: an earlier one still waiting was abandoned). Raises
+        :class:`StreamError` (404: no such chunk; 409: superseded; 500: the stream failed; 504:
+        not produced in time)."""
         src = self.source(drive_id)
         if not 0 <= k < src.chunks:
             raise StreamError(f"drive {drive_id} has chunks 0-{src.chunks - 1}, not {k}", 404)
         deadline = time.monotonic() + timeout
         starts = 0
         with self.cond:
+            ticket = self._tickets[viewer] = self._tickets.get(viewer, 0) + 1
             while True:
+                if viewer and self._tickets[viewer] != ticket:  # the page asked for another chunk since
+                    raise StreamError(f"chunk {k} of drive {drive_id}: superseded by a newer request", 409)
                 key = (drive_id, self._generation, k)
                 data = self.cache.get(key)
                 if data is not None:

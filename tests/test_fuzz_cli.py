@@ -320,6 +320,11 @@ CASES: list[tuple[str, str, str]] = [
     ("voeval-report-file", "voeval report clip.mp4", "no results"),
     # demo and the top level
     ("demo-out-is-file", "demo --out clip.mp4", "is a file"),
+    # serve (refused before it listens)
+    ("serve-not-archive", "serve notarc", "not an egovid archive"),
+    ("serve-port", "serve arc --port 70000", "not a port"),
+    ("serve-token-short", "serve arc --token abc", "16 characters"),
+    ("serve-report-missing", "serve arc --voeval nothere", "report folder"),
     ("top-unknown-command", "stabilise clip.mp4", "stabilise"),
 ]
 

@@ -44,6 +44,7 @@ def _register() -> None:
     app.add_typer(dashcam.app, name="dashcam")
     app.add_typer(voeval.app, name="voeval")
     app.command("demo")(demo.demo)
+    app.command("serve")(__import__("egovid.cli.serve", fromlist=["serve"]).serve)
 
 
 def _print_version(value: bool) -> None:

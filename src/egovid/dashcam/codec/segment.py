@@ -672,6 +672,8 @@ def decode_runs(
         for (k, role, last_k), pkt in zip(plan[p0:], packets, strict=False):
             if k < skip:
                 continue
+            if role in ("key", "dummy", "ra"):  # a run start: no frame held before it is referred to again
+                held.clear()
             if role == "dummy":
                 dec.decode(pkt)
                 continue

@@ -80,3 +80,11 @@ def test_readout_time_only_from_the_same_mode():
     other_rate = find_profile("GoPro", "HERO6 Black", 3840, 2160, lens="W", stabilized=False, fps=119.88).match
     assert other_rate.readout_ms is None
     assert profiles_of("GoPro", "HERO6 Black")
+
+
+def test_a_measured_focal_length_picks_the_lens():
+    """The HERO6 clip names no lens; its gyro-fitted 385 px (848 px wide) is the Wide lens."""
+    r = find_profile("GoPro", "Hero6 Black", 848, 480, fps=29.97, focal_px=385.1)
+    assert r.match is not None and r.match.profile.lens_class == "wide", r.reason
+    assert abs(r.match.fx / 385.1 - 1) < 0.08 and "fits" in r.reason
+    assert find_profile("GoPro", "Hero6 Black", 848, 480, fps=29.97, focal_px=300.0).match is None

@@ -274,13 +274,16 @@ def find_profile(
     lens: str | None = None,
     stabilized: bool | None = None,
     fps: float | None = None,
+    focal_px: float | None = None,
 ) -> LensLookup:
     """The profile of a camera for a ``width`` x ``height`` video (pixels, display orientation)
     recorded at ``fps``; see the module docstring for the rules.
 
     ``lens``: a GoPro lens-mode code (``"W"``, ``"M"``...) or a lens name; ``stabilized``: whether
     the camera stabilised the picture electronically (None: unknown, then only profiles that
-    agree among themselves are used). Never raises for unknown cameras: the reason says why
+    agree among themselves are used); ``focal_px``: a focal length measured on the video (the
+    gyro fit, pixels), which picks the lens when the file names none: the one lens whose profile
+    is within :data:`MAX_SPREAD` of it. Never raises for unknown cameras: the reason says why
     nothing matched.
     """
     key = model_key(brand, model)
@@ -318,9 +321,17 @@ def find_profile(
     else:
         chosen = [p for p in usable if p.lens_class not in ("anamorphic", "max lens mod")]
         named = sorted({p.lens_class for p in chosen} - {""})
+        lens_note = "no lens mode in the file"
+        if len(named) > 1 and focal_px:
+            near = sorted(
+                {p.lens_class for p in chosen if p.lens_class and abs(p.fx * w / p.width / focal_px - 1) <= MAX_SPREAD}
+            )
+            if len(near) == 1:
+                chosen = [p for p in chosen if p.lens_class == near[0]]
+                named = near
+                lens_note = f"{near[0]} lens, the one the measured {focal_px:.0f} px focal length fits"
         if len(named) > 1:
             return LensLookup(None, f"the file does not say which of {camera}'s lenses ({', '.join(named)}) was used")
-        lens_note = "no lens mode in the file"
     if not chosen:
         return LensLookup(None, f"no profile of {camera} with its {lens_note}")
     # Stabilisation.
@@ -347,6 +358,9 @@ def find_profile(
 
     best = min(rank(p) for p in chosen)
     tied = [p for p in chosen if rank(p) == best]
+    if focal_px:  # a measured focal length also tells stabilised (cropped) from plain calibrations
+        fits = [p for p in tied if abs(p.fx * w / p.width / focal_px - 1) <= MAX_SPREAD]
+        tied = fits or tied
     rel = [p.fx / p.width for p in tied]
     spread = max(rel) / min(rel) - 1.0
     if spread > MAX_SPREAD and len(tied) > 2:

@@ -36,11 +36,7 @@ def to_frame_time(pts: np.ndarray, K: np.ndarray, omega: np.ndarray, readout_s: 
     p = np.asarray(pts, float)
     if len(p) == 0 or readout_s == 0 or not np.any(omega):
         return p.copy()
-    d = row_offsets(p[:, 1], height, readout_s)
-    rays = np.column_stack([p, np.ones(len(p))]) @ np.linalg.inv(K).T
-    R = so3_exp(np.outer(d, np.asarray(omega, float)))  # (N, 3, 3)
-    turned = np.einsum("nij,nj->ni", R, rays) @ K.T
-    return turned[:, :2] / turned[:, 2:3]
+    return _to_frame_time_rows(p, p[:, 1], K, omega, readout_s, height)
 
 
 def pair_rate(Q: np.ndarray, dt_s: float) -> np.ndarray:
@@ -56,3 +52,66 @@ def corrected_pair(
     the pair's current rotation ``Q`` over its ``dt_s`` seconds."""
     w = pair_rate(Q, dt_s)
     return to_frame_time(pi, K, w, readout_s, height), to_frame_time(pj, K, w, readout_s, height)
+
+
+def frame_rates(R: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Angular velocity (N, 3) rad/s in each frame's own axes at the frame times, from camera-to-world
+    orientations ``R`` (N, 3, 3): central differences (one-sided at the ends)."""
+    n = len(R)
+    if n < 2:
+        return np.zeros((n, 3))
+    a = np.clip(np.arange(n) - 1, 0, n - 1)
+    b = np.clip(np.arange(n) + 1, 0, n - 1)
+    steps = so3_log(np.swapaxes(R[a], 1, 2) @ R[b])
+    return steps / np.maximum(np.asarray(times)[b] - np.asarray(times)[a], 1e-9)[:, None]
+
+
+def undistort_fisheye(pts: np.ndarray, K: np.ndarray, distortion) -> np.ndarray:
+    """Pixels (N, 2) of an OpenCV-fisheye picture (``K``, ``k1..k4``) as the pinhole camera ``K``
+    would see them."""
+    import cv2
+
+    p = np.asarray(pts, np.float64).reshape(-1, 1, 2)
+    if len(p) == 0:
+        return np.zeros((0, 2))
+    return cv2.fisheye.undistortPoints(p, K, np.asarray(distortion, np.float64), P=K).reshape(-1, 2)
+
+
+def refit_pairs(pairs, rates: np.ndarray | None, readout_s: float, *, distortion=None):
+    """The pair set (:class:`egovid.core.motion.estimate.PairSet`) re-fitted from its kept matches
+    (raw pixels of the work picture) with the lens ``distortion`` (fisheye ``k1..k4``) removed and
+    every point moved to its frame's time stamp for a camera turning at ``rates`` (N, 3) rad/s
+    (camera axes, per frame: vision's first pass or the synced gyro). Rows are timed where the
+    sensor read them (the distorted picture's rows). Pairs without kept matches, or whose re-fit
+    fails, stay as they were."""
+    from egovid.core.motion.estimate import PairSet
+    from egovid.core.motion.pairwise import rotation_from_correspondences
+
+    K, h = pairs.work.K, pairs.work.height
+    out = []
+    for i, j, p in pairs.pairs:
+        m = pairs.matches.get((i, j))
+        if m is None or not p.ok:
+            out.append((i, j, p))
+            continue
+        fixed = []
+        for pts, k in ((m[0], i), (m[1], j)):
+            pts = np.asarray(pts, float)
+            rows = pts[:, 1].copy()
+            if distortion is not None and np.any(distortion):
+                pts = undistort_fisheye(pts, K, distortion)
+            if rates is not None and readout_s:
+                pts = _to_frame_time_rows(pts, rows, K, rates[k], readout_s, h)
+            fixed.append(pts)
+        q = rotation_from_correspondences(fixed[0], fixed[1], K, threshold_px=pairs.threshold_px)
+        out.append((i, j, q if q.ok else p))
+    return PairSet(pairs.times, out, pairs.work, pairs.matches, pairs.threshold_px, pairs.seconds)
+
+
+def _to_frame_time_rows(pts, rows, K, omega, readout_s, height) -> np.ndarray:
+    """:func:`to_frame_time` with the rows' times taken from ``rows`` (the sensor rows)."""
+    d = row_offsets(rows, height, readout_s)
+    rays = np.column_stack([pts, np.ones(len(pts))]) @ np.linalg.inv(K).T
+    R = so3_exp(np.outer(d, np.asarray(omega, float)))
+    turned = np.einsum("nij,nj->ni", R, rays) @ K.T
+    return turned[:, :2] / turned[:, 2:3]

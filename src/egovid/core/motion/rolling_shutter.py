@@ -18,8 +18,11 @@ the row-time rule, shared with the stabiliser's per-row warp.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from egovid.core.motion.pairwise import rotation_from_correspondences
 from egovid.core.rotations import so3_exp, so3_log
 
 
@@ -84,9 +87,6 @@ def refit_pairs(pairs, rates: np.ndarray | None, readout_s: float, *, distortion
     (camera axes, per frame: vision's first pass or the synced gyro). Rows are timed where the
     sensor read them (the distorted picture's rows). Pairs without kept matches, or whose re-fit
     fails, stay as they were."""
-    from egovid.core.motion.estimate import PairSet
-    from egovid.core.motion.pairwise import rotation_from_correspondences
-
     K, h = pairs.work.K, pairs.work.height
     out = []
     for i, j, p in pairs.pairs:
@@ -105,7 +105,7 @@ def refit_pairs(pairs, rates: np.ndarray | None, readout_s: float, *, distortion
             fixed.append(pts)
         q = rotation_from_correspondences(fixed[0], fixed[1], K, threshold_px=pairs.threshold_px)
         out.append((i, j, q if q.ok else p))
-    return PairSet(pairs.times, out, pairs.work, pairs.matches, pairs.threshold_px, pairs.seconds)
+    return replace(pairs, pairs=out)
 
 
 def _to_frame_time_rows(pts, rows, K, omega, readout_s, height) -> np.ndarray:

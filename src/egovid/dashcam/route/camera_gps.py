@@ -32,6 +32,7 @@ from egovid.core.camera.gpmf import GpmfGps
 from egovid.core.camera.gps_check import GpsAgreement
 from egovid.core.camera.tesla import TeslaTelemetry
 from egovid.core.errors import EgovidError
+from egovid.dashcam.route.tracks import as_float
 
 #: Fixes whose dilution of precision is above this are dropped as imprecise.
 MAX_DOP = 5.0
@@ -160,17 +161,10 @@ def exiftool_documents(records: list[tuple[int, str, str]]) -> list[ExifDocument
     return out
 
 
-def _num(v) -> float:
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return math.nan
-
-
 def _speed_ms(speed, ref) -> float:
     """ExifTool's GPSSpeed in m/s given GPSSpeedRef (K km/h, M mph, N knots; GoPro writes m/s and
     no ref); NaN if the unit is unknown."""
-    v = _num(speed)
+    v = as_float(speed)
     if ref is None:
         return v
     factor = {"K": 1 / 3.6, "M": 0.44704, "N": 0.514444}.get(str(ref).strip().upper()[:1])
@@ -186,22 +180,22 @@ def exiftool_rows(records: list[tuple[int, str, str]], parse_time, name: str = "
         n = len(d.fixes)
         if n == 0:
             continue
-        t0, dur = _num(d.meta.get("SampleTime")), _num(d.meta.get("SampleDuration"))
+        t0, dur = as_float(d.meta.get("SampleTime")), as_float(d.meta.get("SampleDuration"))
         share = [k * dur / n if math.isfinite(dur) else 0.0 for k in range(n)]
         own = [_fix_time(f, parse_time) for f in d.fixes]
         doc_time = _fix_time(d.shared, parse_time) if d.shared else None
         for k, f in enumerate(d.fixes):
             g = {**d.shared, **f}
-            lat, lon = _num(g.get("GPSLatitude")), _num(g.get("GPSLongitude"))
+            lat, lon = as_float(g.get("GPSLatitude")), as_float(g.get("GPSLongitude"))
             status = str(g.get("GPSStatus", "A")).strip().upper()[:1]
-            mode = _num(g.get("GPSMeasureMode"))
+            mode = as_float(g.get("GPSMeasureMode"))
             if not (math.isfinite(lat) and math.isfinite(lon)) or (abs(lat) < 1e-6 and abs(lon) < 1e-6):
                 _count(dropped, "no fix")
                 continue
             if status == "V" or (math.isfinite(mode) and mode < 2):
                 _count(dropped, "no fix")
                 continue
-            dop = _num(g.get("GPSHPositioningError", g.get("GPSDOP")))
+            dop = as_float(g.get("GPSHPositioningError", g.get("GPSDOP")))
             if math.isfinite(dop) and MAX_DOP < dop < 99.99:
                 _count(dropped, "imprecise")
                 continue
@@ -212,7 +206,7 @@ def exiftool_rows(records: list[tuple[int, str, str]], parse_time, name: str = "
                 _count(dropped, "no time")
                 continue
             vt = t0 + share[k] if math.isfinite(t0) else math.nan
-            bearing = _num(g.get("GPSTrack")) if str(g.get("GPSTrackRef", "T")).upper()[:1] == "T" else math.nan
+            bearing = as_float(g.get("GPSTrack")) if str(g.get("GPSTrackRef", "T")).upper()[:1] == "T" else math.nan
             rows.append((utc, vt, lat, lon, _speed_ms(g.get("GPSSpeed"), g.get("GPSSpeedRef")), bearing))
     return GpsRows(rows, f"ExifTool ({name})" if name else "ExifTool", dropped)
 

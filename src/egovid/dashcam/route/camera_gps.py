@@ -103,7 +103,7 @@ def tesla_rows(tel: TeslaTelemetry, start_utc: float) -> GpsRows:
             tel.video_t[has], c["lat"][has], c["lon"][has], c["speed_mps"][has], c["heading_deg"][has], strict=True
         )
     ]
-    return GpsRows(rows, "Tesla SEI", dropped)
+    return GpsRows(rows, "Tesla SEI (time of day from the clip's clock)", dropped)
 
 
 # -- ExifTool, in file order -------------------------------------------------------------------

@@ -48,6 +48,9 @@ from egovid.core.motion.posegraph import Edge
 from egovid.core.trajectory import Trajectory
 from egovid.core.video import frame_times, probe
 
+#: Intrinsics sources a gyro fit refines (the user's flags, the file's own facts and a calibrated
+#: lens profile come before it; see :mod:`egovid.core.camera.resolve`).
+FITTED_SOURCES = ("lens-mode", "default")
 #: Seconds of video that vision measures to sync a gyro when the gyro alone is the source.
 SYNC_SECONDS = 30.0
 #: A focal-length fit moves the focal length only if it is this much (relative) off.
@@ -295,7 +298,7 @@ def camera_motion(
     )
     if run.track is not None:
         _sync_sensor(run)
-    if run.track is not None and run.camera.source != "flag" and run.pairs.matches:
+    if run.track is not None and run.camera.source in FITTED_SOURCES and run.pairs.matches:
         _fit_focal(run)
     if run.track is not None and run.pairs is not None:
         run.comparison = gyro_mod.compare_rotations(
@@ -353,8 +356,8 @@ def _start(
     window = None if full_vision else max(2, int(SYNC_SECONDS * info.fps))
     # Matched points are kept for the focal-length fit, over at most 1.5 x the sync window (so a
     # short clip is re-fitted without decoding it again; a long one is decoded twice).
-    user_focal = camera.source == "flag"
-    keep = 0 if track is None or user_focal else int(SYNC_SECONDS * 1.5 * max(info.fps, 1.0)) + max(opts.lags)
+    fixed = camera.source not in FITTED_SOURCES  # the user's, the file's or a calibration: not refitted
+    keep = 0 if track is None or fixed else int(SYNC_SECONDS * 1.5 * max(info.fps, 1.0)) + max(opts.lags)
     vopts = MotionOptions(**{**opts.__dict__, "keep_matches": keep, "max_frames": window})
     return _Run(video, source, reason, camera, telemetry, vopts, full_vision, keep, _stage(progress), track, track)
 

@@ -3,6 +3,7 @@ which pairs the fixes ExifTool numbers as separate copies (the HERO6/7/MAX 'no G
 
 from __future__ import annotations
 
+import datetime as dt
 import math
 
 import exiftool
@@ -83,3 +84,24 @@ def test_tesla_rows(tmp_path):
     np.testing.assert_allclose(a[:, 2], truth.channels["lat"][4:])
     np.testing.assert_allclose(a[:, 4], truth.channels["speed_mps"][4:])
     assert math.isfinite(a[0, 5])
+
+
+def test_embedded_gps_of_every_gopro_and_of_a_tesla_clip(tmp_path):
+    """What ingest reads with no --gps: the HERO6 clip's 36 fixes (main found none), a HERO13's
+    GPS9, and a Tesla clip's SEI positions timed by its file name."""
+    from egovid.dashcam.ingest.sources import ClockOptions, examine
+    from egovid.dashcam.route.embedded import read_embedded_gps
+
+    e = read_embedded_gps(real_clip("gopro-hero6-2s.mp4"))
+    assert e is not None and len(e.track) == 36 and e.timed and "GPMF GPS5" in e.reader
+    h13 = tmp_path / "GX010013.MP4"
+    truth = write_gopro_clip(h13, "hero13", seconds=2)
+    e = read_embedded_gps(h13)
+    assert e is not None and len(e.track) == 20 and "GPS9" in e.reader
+    np.testing.assert_allclose(e.track.t, truth.utc, atol=1e-3)
+    tesla = tmp_path / "2025-11-20_14-03-12-front.mp4"
+    write_tesla_clip(tesla, seconds=1.0, size=(320, 240))
+    assert read_embedded_gps(tesla) is None  # no time of day in the SEI: the ingest's clock decides
+    src = examine(tesla, None, ClockOptions(tz_offset_h=-8.0))
+    assert src.embedded is not None and len(src.embedded.track) == 36 and "Tesla SEI" in src.embedded.reader
+    assert src.clock.start_utc == pytest.approx(dt.datetime(2025, 11, 20, 22, 3, 12, tzinfo=dt.UTC).timestamp())

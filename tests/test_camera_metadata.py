@@ -71,9 +71,19 @@ def test_intrinsics_resolution_order(karma_clip, handheld_clip, tmp_path):
 
     from egovid.core.camera.resolve import resolve_camera
 
-    # GoPro lens mode: Medium, 94.4° published across 854 px, equidistant fisheye.
+    # The HERO5's calibrated Medium profile (NO-EIS, 2704x1520 scaled to 854 px), with its
+    # fisheye distortion, before GoPro's published field of view.
     cam = resolve_camera(karma_clip)
-    assert cam.source == "lens-mode" and "Medium" in cam.detail
+    assert cam.source == "lens-profile" and "Medium" in cam.detail, cam.detail
+    assert cam.intrinsics.distortion is not None and cam.profile["calibration_size"] == [2704, 1520]
+    assert cam.intrinsics.focal == pytest.approx(552.2, abs=0.5)
+    assert cam.to_dict()["lens_profile"]["reason"] == cam.detail
+    # A lens mode with no profile for the camera: GoPro's published field of view, equidistant.
+    from egovid.core.camera.telemetry import CameraTelemetry
+
+    unknown = CameraTelemetry(make="GoPro", model="HERO99 Black", lens_mode="M")
+    cam = resolve_camera(karma_clip, telemetry=unknown)
+    assert cam.source == "lens-mode" and "no lens profile" in cam.detail
     assert cam.intrinsics.focal == pytest.approx(427.0 / math.radians(47.2), rel=1e-6)
     # Flags win over the file.
     assert resolve_camera(karma_clip, focal=500.0).source == "flag"

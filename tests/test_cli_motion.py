@@ -33,9 +33,10 @@ def karma_vision(karma_clip, tmp_path_factory):
 def test_gopro_vision_against_its_own_gyro(karma_vision):
     doc, rows = karma_vision
     assert doc["source"] == "vision" and len(rows) == doc["frames"] == 362
-    # No flag: the focal length comes from the camera (lens mode, then fitted to the gyro).
-    assert doc["intrinsics"]["source"] == "gyro-fit"
-    assert "Medium" in doc["intrinsics"]["detail"]
+    # No flag: the camera's calibrated lens profile (HERO5 Black, Medium, with its distortion),
+    # picked from the file's own facts; the gyro only checks it.
+    assert doc["intrinsics"]["source"] == "lens-profile"
+    assert "Medium" in doc["intrinsics"]["detail"] and doc["intrinsics"]["distortion_fisheye_k"]
     sync = doc["gyro_sync"]
     assert sync["axes_snapped"] and sync["r_vector"] > 0.95
     assert -60 < sync["offset_ms"] < -15  # rolling shutter and exposure: about -36 ms

@@ -52,20 +52,18 @@ def test_file_name_and_creation_time_parsing():
 
 
 def test_exiftool_samples_become_fixes_on_the_video_clock():
-    # Two timed-metadata samples of 1 s with two fixes each, keyed the way ExifTool -a -G3:4 keys
-    # them (the fix without a Copy number is its document's last); one fix is void.
-    tags = {
-        "Doc1:SampleTime": 0, "Doc1:SampleDuration": 1.0,
-        "Doc1:GPSDateTime": "2024:05:04 08:00:10.5", "Doc1:GPSLatitude": 48.2, "Doc1:GPSLongitude": 11.6,
-        "Doc1:Copy1:GPSDateTime": "2024:05:04 08:00:10.0", "Doc1:Copy1:GPSLatitude": 48.1,
-        "Doc1:Copy1:GPSLongitude": 11.5,
-        "Doc2:Copy1:SampleTime": 1.0, "Doc2:Copy1:SampleDuration": 1.0,
-        "Doc2:Copy2:GPSDateTime": "2024:05:04 08:00:11.0", "Doc2:Copy2:GPSLatitude": 48.3,
-        "Doc2:Copy2:GPSLongitude": 11.7, "Doc2:Copy2:GPSSpeed": 36.0, "Doc2:Copy2:GPSSpeedRef": "K",
-        "Doc2:Copy3:GPSDateTime": "2024:05:04 08:00:11.5", "Doc2:Copy3:GPSLatitude": 0.0,
-        "Doc2:Copy3:GPSLongitude": 0.0,
-    }  # fmt: skip
-    e = fixes_from_exiftool(tags)
+    # Two timed-metadata samples of 1 s with two fixes each, as ExifTool -ee -a -G3 -args lists
+    # them (file order); one fix is void.
+    text = "\n".join([
+        "-Doc1:SampleTime=0", "-Doc1:SampleDuration=1.0",
+        "-Doc1:GPSDateTime=2024:05:04 08:00:10.0", "-Doc1:GPSLatitude=48.1", "-Doc1:GPSLongitude=11.5",
+        "-Doc1:GPSDateTime=2024:05:04 08:00:10.5", "-Doc1:GPSLatitude=48.2", "-Doc1:GPSLongitude=11.6",
+        "-Doc2:SampleTime=1.0", "-Doc2:SampleDuration=1.0",
+        "-Doc2:GPSDateTime=2024:05:04 08:00:11.0", "-Doc2:GPSLatitude=48.3", "-Doc2:GPSLongitude=11.7",
+        "-Doc2:GPSSpeed=36.0", "-Doc2:GPSSpeedRef=K",
+        "-Doc2:GPSDateTime=2024:05:04 08:00:11.5", "-Doc2:GPSLatitude=0.0", "-Doc2:GPSLongitude=0.0",
+    ])  # fmt: skip
+    e = fixes_from_exiftool(text)
     assert e is not None and e.timed
     np.testing.assert_allclose(e.track.lat, [48.1, 48.2, 48.3])
     np.testing.assert_allclose(e.video_t, [0.0, 0.5, 1.0])
@@ -76,10 +74,10 @@ def test_exiftool_samples_become_fixes_on_the_video_clock():
 
 def test_gps_time_is_the_time_base_and_the_camera_clock_is_checked():
     t0 = utc(2024, 5, 4, 8, 0, 0)
-    tags = {f"Doc{k + 1}:{key}": v for k in range(5) for key, v in
+    text = "\n".join(f"-Doc{k + 1}:{key}={v}" for k in range(5) for key, v in
             (("SampleTime", k), ("SampleDuration", 1), ("GPSDateTime", f"2024:05:04 08:00:{k + 3:02d}"),
-             ("GPSLatitude", 48.1 + k * 1e-4), ("GPSLongitude", 11.5))}  # fmt: skip
-    e = fixes_from_exiftool(tags)
+             ("GPSLatitude", 48.1 + k * 1e-4), ("GPSLongitude", 11.5)))  # fmt: skip
+    e = fixes_from_exiftool(text)
     # A camera writing local time (UTC-7) into creation_time: GPS wins and the clock is reported.
     c = resolve_clock(5.0, embedded=e, creation_time=t0 + 3 - 7 * 3600)
     assert c.start_utc == pytest.approx(t0 + 3) and c.source.startswith("GPS time")

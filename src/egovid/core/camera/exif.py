@@ -103,6 +103,25 @@ class ExifTool:
         tags.pop("SourceFile", None)
         return tags
 
+    def records(self, path: str | os.PathLike) -> str:
+        """The timed streams of ``path`` as ExifTool's ``-args`` text, every tag in file order
+        (``-ee -a -G3``: ``-Doc2:GPSLatitude=…`` lines), the form that keeps one sample's fields
+        together where the copy numbers of :meth:`tags` would give them different numbers.
+        Raises :class:`EgovidError` like :meth:`tags`."""
+        import exiftool
+
+        p = Path(path)
+        if not p.is_file():
+            raise EgovidError(f"file not found: {p}", "check the path")
+        self.start()
+        try:
+            return self._helper.execute("-ee", "-a", "-G3", "-args", "-api", "LargeFileSupport=1", str(p))
+        except exiftool.exceptions.ExifToolException as exc:
+            raise EgovidError(f"ExifTool cannot read {p} ({_reason(exc)})", "check that it is a media file") from None
+        except (OSError, ValueError) as exc:
+            self.close()
+            raise EgovidError(f"ExifTool failed on {p} ({exc})", _INSTALL_FIX) from None
+
 
 def _reason(exc: Exception) -> str:
     """ExifTool's own ``Error`` tag when it printed one (``File format error``), else its stderr."""
@@ -121,6 +140,12 @@ def read_tags(path: str | os.PathLike, *, embedded: bool = False, duplicates: bo
     """Tags of one file (starts and stops an ExifTool process; see :meth:`ExifTool.tags`)."""
     with ExifTool() as et:
         return et.tags(path, embedded=embedded, duplicates=duplicates)
+
+
+def read_records(path: str | os.PathLike) -> str:
+    """:meth:`ExifTool.records` of one file (starts and stops an ExifTool process)."""
+    with ExifTool() as et:
+        return et.records(path)
 
 
 def tag_name(key: str) -> str:

@@ -25,7 +25,9 @@ HFOV_RANGE_DEG = (5.0, 175.0)
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """Pinhole intrinsics of a ``width`` x ``height`` image (all in pixels)."""
+    """Intrinsics of a ``width`` x ``height`` image (all in pixels): the camera matrix and, where
+    known (a calibrated lens profile), the lens's OpenCV-fisheye ``distortion`` ``k1..k4``
+    (``θd = θ(1 + k1θ² + k2θ⁴ + k3θ⁶ + k4θ⁸)``; None: a pinhole picture)."""
 
     width: int
     height: int
@@ -33,6 +35,7 @@ class Intrinsics:
     fy: float
     cx: float
     cy: float
+    distortion: tuple[float, float, float, float] | None = None
 
     @classmethod
     def from_focal(cls, width: int, height: int, focal_px: float) -> Intrinsics:
@@ -95,7 +98,9 @@ class Intrinsics:
         w = max(1, round(self.width * factor))
         h = max(1, round(self.height * factor))
         sx, sy = w / self.width, h / self.height
-        return Intrinsics(w, h, self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5)
+        return Intrinsics(
+            w, h, self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, self.distortion
+        )
 
 
 def _check_size(width: int, height: int) -> None:

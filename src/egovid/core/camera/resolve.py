@@ -1,14 +1,22 @@
 """Which intrinsics a video file has, and where they come from.
 
-:func:`resolve_camera` is the one place that decides a video's intrinsics, in this order:
+:func:`resolve_camera` is the one place that decides a video's intrinsics, in this order (the
+JSON says which, and why, under ``intrinsics.source``/``detail``):
 
-1. ``--focal PX`` or ``--hfov DEG`` given by the user;
-2. (in :mod:`egovid.core.motion.source`, when a gyro is recorded) the focal length fitted from the
-   gyro against the video;
-3. the lens mode the camera recorded (GoPro ``VFOV``: Wide, Medium, Narrow, SuperView, Linear),
-   through GoPro's published field of view and an equidistant (fisheye) lens;
-4. a 35 mm-equivalent focal length in the file's metadata (phones; read with ExifTool);
-5. the default camera of :mod:`egovid.core.camera.intrinsics`.
+1. ``--focal PX`` or ``--hfov DEG`` given by the user (``flag``);
+2. the file's own facts: a 35 mm-equivalent focal length in its metadata (phones, Sony; read with
+   telemetry-parser or ExifTool; ``35mm-equivalent``);
+3. the calibrated lens profile of the camera (Gyroflow's database,
+   :mod:`egovid.core.camera.lens_profiles`): camera model, lens mode, stabilisation setting and
+   resolution from the file, with the lens's fisheye distortion (``lens-profile``);
+4. (in :mod:`egovid.core.motion.source`, when a gyro is recorded) the focal length fitted from the
+   gyro against the video (``gyro-fit``), which refines only what follows;
+5. the lens mode the camera recorded (GoPro ``VFOV``: Wide, Medium, Narrow, SuperView, Linear),
+   through GoPro's published field of view and an equidistant (fisheye) lens (``lens-mode``);
+6. the default camera of :mod:`egovid.core.camera.intrinsics` (``default``).
+
+The frame readout time of a rolling shutter comes with it: GoPro's ``SROT`` (the file's own),
+else the profile's calibrated one for this very mode (``readout_ms``, ``readout_source``).
 """
 
 from __future__ import annotations
@@ -24,6 +32,7 @@ from egovid.core.camera.intrinsics import (
     Intrinsics,
     resolve_intrinsics,
 )
+from egovid.core.camera.lens_profiles import find_profile
 from egovid.core.camera.telemetry import CameraTelemetry, read_camera_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.video import probe
@@ -60,11 +69,18 @@ class CameraModel:
     source: str
     detail: str
     rotation: int = 0
+    readout_ms: float | None = None
+    readout_source: str = ""
+    profile: dict | None = None
 
     def with_focal(self, focal_px: float, source: str, detail: str) -> CameraModel:
-        """The same camera with another focal length (pixels)."""
+        """The same camera with another focal length (pixels; a pinhole: a profile's distortion
+        belongs to its own focal length)."""
         i = self.intrinsics
-        return CameraModel(Intrinsics.from_focal(i.width, i.height, focal_px), source, detail, self.rotation)
+        return CameraModel(
+            Intrinsics.from_focal(i.width, i.height, focal_px), source, detail, self.rotation,
+            self.readout_ms, self.readout_source,
+        )  # fmt: skip
 
     def to_dict(self) -> dict:
         """JSON-ready description (pixels and degrees)."""
@@ -78,6 +94,10 @@ class CameraModel:
             "source": self.source,
             "detail": self.detail,
             "rotation": self.rotation,
+            "distortion_fisheye_k": list(i.distortion) if i.distortion is not None else None,
+            "readout_ms": self.readout_ms,
+            "readout_source": self.readout_source or None,
+            "lens_profile": self.profile,
         }
 
 
@@ -119,15 +139,8 @@ def resolve_camera(
         except EgovidError:
             telemetry = None
     camera = " ".join(x for x in (getattr(telemetry, "make", None), getattr(telemetry, "model", None)) if x)
-    mode = getattr(telemetry, "lens_mode", None)
-    if mode:
-        found = _lens_mode_focal(long_side, mode)
-        if found is not None:
-            f, how = found
-            name = telemetry.lens_name or mode
-            return CameraModel(
-                Intrinsics.from_focal(w, h, f), "lens-mode", f"{camera} {name} lens ({how})".strip(), rot
-            )
+    readout = getattr(telemetry, "readout_ms", None)
+    readout_from = "the file (GoPro SROT)" if readout else ""
     f35 = getattr(telemetry, "zoom_35mm", None)
     if f35 is None:
         if tags is None:
@@ -139,10 +152,43 @@ def resolve_camera(
     if f35 is not None:
         f = f35 * math.hypot(w, h) / FILM_DIAGONAL_MM
         if HFOV_RANGE_DEG[0] < 2 * math.degrees(math.atan2(long_side / 2, f)) < HFOV_RANGE_DEG[1]:
-            return CameraModel(Intrinsics.from_focal(w, h, f), "35mm-equivalent", f"{f35:g} mm (35 mm equivalent)", rot)
+            return CameraModel(
+                Intrinsics.from_focal(w, h, f), "35mm-equivalent", f"{f35:g} mm (35 mm equivalent)", rot,
+                readout, readout_from,
+            )  # fmt: skip
+    mode = getattr(telemetry, "lens_mode", None)
+    looked = find_profile(
+        getattr(telemetry, "make", None), _model_of(telemetry), w, h, lens=mode,
+        stabilized=getattr(telemetry, "electronically_stabilized", None), fps=info.fps,
+    )  # fmt: skip
+    if looked.match is not None:
+        m = looked.match
+        if readout is None and m.readout_ms:
+            readout, readout_from = m.readout_ms, "the lens profile"
+        intr = Intrinsics(w, h, m.fx, m.fy, m.cx, m.cy, m.distortion)
+        return CameraModel(intr, "lens-profile", looked.reason, rot, readout, readout_from, m.to_dict())
+    if mode:
+        found = _lens_mode_focal(long_side, mode)
+        if found is not None:
+            f, how = found
+            name = telemetry.lens_name or mode
+            detail = f"{camera} {name} lens ({how}); no lens profile: {looked.reason}".strip()
+            return CameraModel(Intrinsics.from_focal(w, h, f), "lens-mode", detail, rot, readout, readout_from)
     return CameraModel(
-        Intrinsics.default(w, h), "default", f"{DEFAULT_FOCAL_AT_1080P:g} px at 1920 px, scaled to the long side", rot
-    )
+        Intrinsics.default(w, h), "default",
+        f"{DEFAULT_FOCAL_AT_1080P:g} px at 1920 px, scaled to the long side; no lens profile: {looked.reason}",
+        rot, readout, readout_from,
+    )  # fmt: skip
+
+
+def _model_of(telemetry) -> str | None:
+    """The camera model: telemetry-parser's, else the GPMF device name when it names a model
+    (a re-muxed GoPro file keeps only that: ``Hero6 Black``)."""
+    model = getattr(telemetry, "model", None)
+    if model:
+        return model
+    name = (getattr(telemetry, "tags", None) or {}).get("Default.Name")
+    return str(name) if name and str(name).lower() not in ("camera", "") else None
 
 
 def _positive(value) -> float | None:

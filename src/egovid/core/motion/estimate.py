@@ -36,6 +36,7 @@ from egovid.core.errors import EgovidError
 from egovid.core.motion.features import FeatureExtractor, FrameFeatures, Matcher
 from egovid.core.motion.pairwise import PairRotation, correspondences, rotation_from_correspondences
 from egovid.core.motion.posegraph import Edge, chain, optimize
+from egovid.core.motion.rolling_shutter import undistort_fisheye
 from egovid.core.rotations import so3_exp, so3_log
 from egovid.core.trajectory import Trajectory
 from egovid.core.video import iter_frames, probe
@@ -172,7 +173,7 @@ def collect_pairs(
     # The solver's libraries take ~1 s to import; the pair jobs leave the interpreter free most of
     # the time (OpenCV and the compiled fit run without the GIL), so import them meanwhile.
     threading.Thread(target=_import_solver, name="import-solver", daemon=True).start()
-    with _PairScheduler(opts) as scheduler:
+    with _PairScheduler(opts, intr.distortion) as scheduler:
         for frame in iter_frames(video, gray=True, scale=scale if scale < 1.0 else None, max_frames=opts.max_frames):
             if frame.image.shape[1] != work.width or frame.image.shape[0] != work.height:
                 # FFmpeg may round the scaled size differently; follow the actual image.
@@ -192,7 +193,8 @@ class _PairScheduler:
     decoded, its distance-1 pair at once, its longer pairs ``delay`` frames later (see
     :data:`LONG_DELAY`); only the last ``max(lags) + delay + 1`` frames' features are held."""
 
-    def __init__(self, opts: MotionOptions) -> None:
+    def __init__(self, opts: MotionOptions, distortion: tuple[float, ...] | None = None) -> None:
+        self.distortion = distortion if distortion is not None and any(distortion) else None
         self.opts = opts
         self.matcher = Matcher(FeatureExtractor(opts.features, opts.n_features).binary)
         self.local = threading.local()
@@ -256,7 +258,9 @@ class _PairScheduler:
         found = correspondences(pi, pj, K, threshold_px=opts.threshold_px, images=images)
         if found is None:
             return i, j, PairRotation(np.eye(3), 0, len(pi), "none", False), None
-        keep = found if j < opts.keep_matches else None
+        keep = found if j < opts.keep_matches else None  # raw work pixels (see rolling_shutter.refit_pairs)
+        if self.distortion is not None:  # a calibrated fisheye lens: fit the rays, not the pixels
+            found = (undistort_fisheye(found[0], K, self.distortion), undistort_fisheye(found[1], K, self.distortion))
         return i, j, rotation_from_correspondences(*found, K, threshold_px=opts.threshold_px), keep
 
     def _collect(self, results) -> None:

@@ -45,9 +45,13 @@ from egovid.core.motion.estimate import (
     solve_motion,
 )
 from egovid.core.motion.posegraph import Edge
+from egovid.core.motion.rolling_shutter import frame_rates, refit_pairs
 from egovid.core.trajectory import Trajectory
 from egovid.core.video import frame_times, probe
 
+#: Intrinsics sources a gyro fit refines (the user's flags, the file's own facts and a calibrated
+#: lens profile come before it; see :mod:`egovid.core.camera.resolve`).
+FITTED_SOURCES = ("lens-mode", "default")
 #: Seconds of video that vision measures to sync a gyro when the gyro alone is the source.
 SYNC_SECONDS = 30.0
 #: A focal-length fit moves the focal length only if it is this much (relative) off.
@@ -295,8 +299,10 @@ def camera_motion(
     )
     if run.track is not None:
         _sync_sensor(run)
-    if run.track is not None and run.camera.source != "flag" and run.pairs.matches:
+    if run.track is not None and run.camera.source in FITTED_SOURCES and run.pairs.matches:
         _fit_focal(run)
+    if run.camera.readout_ms and run.pairs is not None and run.pairs.matches and len(run.pairs.times) <= run.keep:
+        _correct_rolling_shutter(run)
     if run.track is not None and run.pairs is not None:
         run.comparison = gyro_mod.compare_rotations(
             run.vision.trajectory.R,
@@ -353,8 +359,9 @@ def _start(
     window = None if full_vision else max(2, int(SYNC_SECONDS * info.fps))
     # Matched points are kept for the focal-length fit, over at most 1.5 x the sync window (so a
     # short clip is re-fitted without decoding it again; a long one is decoded twice).
-    user_focal = camera.source == "flag"
-    keep = 0 if track is None or user_focal else int(SYNC_SECONDS * 1.5 * max(info.fps, 1.0)) + max(opts.lags)
+    fixed = camera.source not in FITTED_SOURCES  # the user's, the file's or a calibration: not refitted
+    wanted = (track is not None and not fixed) or bool(camera.readout_ms)  # focal fit, rolling shutter
+    keep = int(SYNC_SECONDS * 1.5 * max(info.fps, 1.0)) + max(opts.lags) if wanted else 0
     vopts = MotionOptions(**{**opts.__dict__, "keep_matches": keep, "max_frames": window})
     return _Run(video, source, reason, camera, telemetry, vopts, full_vision, keep, _stage(progress), track, track)
 
@@ -414,6 +421,29 @@ def _fit_focal(run: _Run) -> None:
                 camera.intrinsics.focal, camera.source, camera.detail + "; confirmed by the gyro"
             )
     run.camera = camera
+
+
+def _correct_rolling_shutter(run: _Run) -> None:
+    """Vision re-fitted with every matched point moved to its frame's time stamp for the camera's
+    readout (:mod:`egovid.core.motion.rolling_shutter`): with the synced gyro's rates where there is
+    one (one pass), else with vision's own rates (two passes: the first corrected estimate gives
+    better rates). Only for clips whose matches are all kept (no second decode)."""
+    t0 = time.perf_counter()
+    readout_s = run.camera.readout_ms / 1000.0
+    times = run.vision.trajectory.times
+    raw = run.pairs
+    use_gyro = run.track is not None and run.sync is not None
+    for _ in range(1 if use_gyro else 2):
+        R = gyro_mod.frame_rotations(run.track, run.sync, times) if use_gyro else run.vision.trajectory.R
+        run.pairs = refit_pairs(raw, frame_rates(R, times), readout_s, distortion=run.camera.intrinsics.distortion)
+        run.vision = solve_motion(
+            run.pairs, run.camera.intrinsics, calibrate=run.vopts.calibrate, detail_hz=run.vopts.detail_hz
+        )
+    run.seconds["rolling_shutter"] = time.perf_counter() - t0
+    run.reason += (
+        f"; rolling shutter ({run.camera.readout_ms:g} ms readout, {run.camera.readout_source}) corrected with "
+        + ("the gyro's rates" if use_gyro else "vision's own rates")
+    )
 
 
 def _sync(track: gyro_mod.GyroTrack, vision: MotionEstimate, orientation: bool) -> gyro_mod.GyroSync:

@@ -27,12 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
+from egovid.core.camera.tesla import read_tesla_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.times import creation_time_utc
 from egovid.core.video import VideoInfo, frame_times, probe
 from egovid.dashcam.ingest.stages import check_frame_size
+from egovid.dashcam.route.camera_gps import tesla_rows
 from egovid.dashcam.route.clock import VideoClock, name_time, resolve_clock
-from egovid.dashcam.route.embedded import EmbeddedGps, read_embedded_gps
+from egovid.dashcam.route.embedded import EmbeddedGps, from_rows, read_embedded_gps
 from egovid.dashcam.route.tracks import GPS_EXTENSIONS, GpsTrack, gps_beside, read_track
 from egovid.dashcam.route.trips import FileInfo, TripPlan, expand_inputs, file_channel, file_kind, plan_trips
 
@@ -140,12 +142,13 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
     info = probe(path)
     times = frame_times(path)
     check_frame_size(path, info)
-    embedded = read_embedded_gps(path)
+    embedded = read_embedded_gps(path) or _tesla_gps(path, info, clock)
     duration = span(times, info.fps)
     found = (log, "--gps") if log is not None else _own_gps(path, embedded) or _folder_log(path, info, duration, clock)
     if found is None:
         raise EgovidError(
-            f"no GPS for {path.name}: none embedded in the video (ExifTool, NMEA text track) and no "
+            f"no GPS for {path.name}: none embedded in the video (NMEA text track, GoPro GPMF, Tesla SEI, "
+            f"ExifTool) and no "
             f"{path.stem}.gpx, .nmea or .csv beside it",
             "give the drive's GPS log with --gps FILE",
         )
@@ -173,6 +176,22 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
         track, source = own
         vc = place(track)
     return FileSource(path, info, times, track, source, vc, file_kind(path), file_channel(path), embedded)
+
+
+def _tesla_gps(path: Path, info: VideoInfo, clock: ClockOptions) -> EmbeddedGps | None:
+    """A Tesla clip's per-frame SEI positions (firmware 2025.44.25+). Its messages carry no time of
+    day: the clip's start is the time in its file name (the car's local clock; ``--tz-offset``
+    applies), else the container's creation time; None without either, or without SEI."""
+    tel = read_tesla_telemetry(path)
+    if tel is None:
+        return None
+    start = name_time(path.name)
+    if start is None:
+        start = creation_time_utc(info.creation_time)
+    if start is None:
+        return None
+    start -= (clock.tz_offset_h or 0.0) * 3600.0
+    return from_rows(tesla_rows(tel, start))
 
 
 @dataclass

@@ -1,0 +1,144 @@
+"""Every camera's own metadata (issue 27): GPS of the real GoPro clips and of every generation's
+layout, lens-profile intrinsics against the camera's gyro, and the rolling-shutter correction.
+
+Figures printed:
+
+* GPS: fixes read per file by egovid's GPMF reader, and whether telemetry-parser (independent)
+  reads the same fixes; ExifTool's fixes paired in file order on the same files (the old pairing
+  by ExifTool's copy numbers, now gone, found 0 of the HERO6 clip's 36: docs/dashcam.md);
+* vision against the camera's gyro on the real GoPro clips (slope, r): with the lens profile the
+  file's facts select (and its fisheye distortion), against the gyro-fitted pinhole (the peer,
+  main's default when a gyro is recorded);
+* a synthetic rolling-shutter clip (30 ms readout at 30 fps, running shake): per-frame error of
+  vision against the known truth, plain, and with the points moved to their frame's time with
+  vision's own rates (two passes), against the global-shutter render of the same motion.
+
+Run: ``python benchmarks/camera_metadata.py`` (a few minutes on 2 cores).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from egovid.core.camera.gpmf import read_gpmf_gps
+from egovid.core.camera.gps_check import compare, read_telemetry_parser_gps
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.camera.lens_profiles import find_profile
+from egovid.core.motion import gyro
+from egovid.core.motion.estimate import MotionOptions, collect_pairs, solve_motion
+from egovid.core.motion.rolling_shutter import frame_rates, refit_pairs
+from egovid.core.motion.source import camera_motion
+from egovid.core.video import probe
+
+from _common import cache_dir, report
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+GENERATIONS = ("hero5", "hero6", "hero7", "hero8", "hero9", "hero10", "hero11", "hero13", "max", "fusion")
+
+
+def gps_figures() -> dict:
+    import exiftool
+
+    from egovid.dashcam.route.camera_gps import exiftool_records, exiftool_rows
+    from egovid.dashcam.route.embedded import parse_gps_time
+    from egovid.synth.gopro import write_gopro_clip
+
+    files = [REAL / n for n in ("gopro-hero5-karma.mp4", "gopro-hero6-2s.mp4")]
+    d = cache_dir("camera_metadata")
+    for g in GENERATIONS:
+        p = d / f"{g}.mp4"
+        if not p.exists():
+            write_gopro_clip(p, g, seconds=4, no_fix=(3,), no_precision=(1,))
+        files.append(p)
+    out = {}
+    with exiftool.ExifToolHelper(common_args=["-n"]) as et:
+        for f in files:
+            gps = read_gpmf_gps(f)
+            check = compare(gps, read_telemetry_parser_gps(f)) if gps is not None else None
+            ordered = exiftool_rows(exiftool_records(et.execute("-ee", "-a", "-G3", "-args", str(f))), parse_gps_time)
+            out[f.name] = {
+                "gpmf_fixes": len(gps) if gps is not None else 0,
+                "gpmf_layout": gps.layout if gps is not None else None,
+                "telemetry_parser": check.to_dict() if check is not None else None,
+                "exiftool_in_file_order_fixes": len(ordered.rows),
+            }
+    return out
+
+
+def vision_figures() -> dict:
+    out = {}
+    clips = (("gopro-hero5-karma.mp4", "HERO5 Black", "M"), ("gopro-hero6-2s.mp4", "HERO6 Black", None))
+    for name, model, lens in clips:
+        clip = REAL / name
+        vis = camera_motion(clip, "vision")
+        track = gyro.integrate(vis.telemetry.imu, bias=vis.sync.bias)
+        R_ref = gyro.frame_rotations(track, vis.sync, vis.trajectory.times)
+        info = probe(clip)
+        found = find_profile(
+            "GoPro", model, info.width, info.height, lens=lens, stabilized=False, fps=info.fps,
+            focal_px=vis.camera.intrinsics.focal,
+        )  # fmt: skip
+        row = {"peer_gyro_fit_pinhole": _cmp(vis.trajectory.R, R_ref, vis.camera.intrinsics.focal)}
+        row["profile"] = found.reason
+        if found.match is not None:
+            intr = Intrinsics.from_focal(info.width, info.height, found.match.fx)
+            pairs = collect_pairs(clip, intr, MotionOptions(keep_matches=10**6))
+            plain = solve_motion(pairs, intr)
+            row["profile_pinhole"] = _cmp(plain.trajectory.R, R_ref, intr.focal)
+            fixed = solve_motion(refit_pairs(pairs, None, 0.0, distortion=found.match.distortion), intr)
+            row["profile_fisheye"] = _cmp(fixed.trajectory.R, R_ref, intr.focal)
+        out[name] = row
+    return out
+
+
+def _cmp(R, R_ref, focal) -> dict:
+    c = gyro.compare_rotations(R, R_ref)
+    return {"focal_px": round(float(focal), 1), "slope": round(c.ratio, 4), "r": round(c.r, 4), "rms_deg": c.rms_deg}
+
+
+def rolling_figures(readout_s: float = 0.03) -> dict:
+    from egovid.core.trajectory import read_motion_csv
+    from egovid.synth.fpv import ground_truth_paths
+    from egovid.synth.motions import jitter, running
+    from egovid.synth.rolling import render_rolling_fpv
+
+    n = 60
+    angles = running(n, yaw_amp=6, pitch_amp=2, period=10) + jitter(n, (0.6, 0.6, 0.3), seed=3)
+    intr = Intrinsics.default(640, 360)
+    d = cache_dir("camera_metadata")
+    out = {}
+    for label, ro in (("global_shutter", 0.0), (f"rolling_{readout_s * 1000:g}ms", readout_s)):
+        video = d / f"rs_{ro:g}.mp4"
+        if not video.exists():
+            render_rolling_fpv(video, angles, ro, intrinsics=intr)
+        truth = read_motion_csv(ground_truth_paths(video)[0])
+        pairs = collect_pairs(video, intr, MotionOptions(keep_matches=10**6, threshold_px=3.0))
+        est = solve_motion(pairs, intr)
+        out[label] = {"vision": _truth(est.trajectory.R, truth.R)}
+        if ro:
+            for k in (1, 2):
+                est = solve_motion(refit_pairs(pairs, frame_rates(est.trajectory.R, pairs.times), ro), intr)
+                out[label][f"corrected_pass_{k}"] = _truth(est.trajectory.R, truth.R)
+    return out
+
+
+def _truth(R, R_true) -> dict:
+    c = gyro.compare_rotations(R, R_true)
+    return {"r": round(c.r, 4), "r_axes": [round(x, 3) for x in c.r_axes], "rms_deg_per_frame": round(c.rms_deg, 4)}
+
+
+def main() -> None:
+    report(
+        "camera_metadata",
+        {
+            "cores": os.cpu_count(),
+            "gps": gps_figures(),
+            "rolling_shutter": rolling_figures(),
+            "vision_vs_gyro": vision_figures(),
+        },
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,392 @@
+"""Calibrated lens profiles (Gyroflow's CC0 database), looked up for a video.
+
+egovid ships a compact index of the 9,779 usable profiles of Gyroflow's lens database
+(``data/lens_profiles.json.gz``, built by ``experiments/build_lens_profiles.py``): for each, the
+camera brand and model, the lens and setting words, the calibration size and frame rate, the
+OpenCV fisheye camera matrix and distortion ``k1..k4`` and, where calibrated, the frame readout
+time of the rolling shutter. :func:`find_profile` picks the profile of a video from what the file
+says about itself:
+
+* **camera**: brand and model, compared without case, spaces or punctuation and without a
+  leading brand (``"Hero6 Black"`` = ``"HERO6 Black"``, ``"GoPro Max"`` = ``"Max"``);
+* **lens**: a GoPro lens mode (``W``, ``M``, ``N``, ``L``, ``S``, ``H``, ``X``; see
+  :data:`LENS_CLASSES`) must be the profile's; a lens name (``"FE 24mm F1.4 GM"``) must share its
+  words with the profile's lens; with no lens known, only a camera whose profiles all describe
+  one field of view (within :data:`MAX_SPREAD`) matches;
+* **stabilisation**: electronic stabilisation crops and warps the picture, so a profile recorded
+  with it on (``HS EIS``, ``EIS-Y``, ``Boost``...) is not used for a video with it off, nor the
+  other way round; a profile that does not say is used for either, after the ones that agree;
+* **picture**: the same aspect ratio (within 1 %: a 4:3 mode is another crop of the sensor
+  than 16:9), then the calibration at this very size (or one Gyroflow lists as compatible)
+  before one to be scaled, then the nearest frame rate (high-speed modes crop differently),
+  then Gyroflow's official profiles, then the lowest calibration error.
+
+Profiles with a non-linear "digital lens" (GoPro SuperView and HyperView stretch) or an anamorphic
+squeeze are never used: egovid's fisheye model does not describe them. Among the profiles that
+tie on all of the above the medoid of the focal length is taken (community profiles of one mode
+scatter), and a spread above :data:`MAX_SPREAD` is reported instead of guessed.
+
+Everything is in pixels of the video (display orientation), the distortion is OpenCV's fisheye
+model (``θd = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸)``, ``r = f θd``), readout times in
+milliseconds (negative: bottom row first).
+"""
+
+from __future__ import annotations
+
+import functools
+import gzip
+import json
+import math
+import re
+from dataclasses import dataclass
+from importlib import resources
+
+#: Largest relative spread (max/min - 1) of the focal lengths of the profiles taken as one match.
+MAX_SPREAD = 0.08
+#: Largest relative difference of aspect ratios (width/height) between profile and video.
+MAX_ASPECT_ERROR = 0.01
+
+#: GoPro lens-mode codes (GPMF ``VFOV``) and the lens class they select among the profiles.
+LENS_CLASSES = {
+    "W": "wide",
+    "M": "medium",
+    "N": "narrow",
+    "L": "linear",
+    "R": "linear",  # Linear + horizon levelling: the same lens, the picture rotated
+    "S": "superview",
+    "H": "hyperview",
+    "X": "max superview",
+}
+
+#: Words of the profiles' lens and setting text that name a lens class, tried in this order
+#: (the first that matches wins; "max" alone depends on the camera, see :func:`lens_class`).
+_LENS_WORDS = (
+    ("anamorphic", r"anamor|anomor|squeeze"),
+    ("max lens mod", r"max ?lens|maxlens|lens ?mod"),
+    ("hyperview", r"hyper ?view"),
+    ("max superview", r"max ?super ?view|\bmsv\b"),
+    ("superview", r"super ?view|\bsuper\b"),
+    ("linear", r"linear|\blin\b"),
+    ("medium", r"medium|\bmid\b"),
+    ("narrow", r"narrow"),
+    ("max wide", r"max ?wide"),
+    ("wide", r"wide|gran ?angular|\bww\b|超宽"),
+    ("max", r"\bmax\b"),
+)
+_EIS_OFF = r"no[ -]?eis|eis[ -]?off|off[ -]?eis|stab(ilization)?[ -]?off|eis[ -]?n\b|non[ -]?eis"
+_EIS_ON = r"\beis\b|eis-y|hs\b|hypersmooth|boost|hlevel|horizon|stab(ilization)?[ -]?on|rocksteady|steady"
+
+
+@dataclass(frozen=True)
+class LensProfile:
+    """One calibration of the database (pixels at its calibration size ``width`` x ``height``)."""
+
+    brand: str
+    model: str
+    lens: str
+    setting: str
+    width: int
+    height: int
+    fps: float | None
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: tuple[float, float, float, float]
+    rms: float | None
+    images: int
+    official: bool
+    readout_ms: float | None
+    stretch: float
+    digital_lens: str
+    compatible: tuple[tuple[int, int], ...]
+
+    @property
+    def name(self) -> str:
+        """Human description: ``GoPro HERO6 Black, Wide, NO-EIS, 2704x1520 @ 29.97 fps``."""
+        words = [f"{self.brand} {self.model}".strip()]
+        words += [w for w in (self.lens, self.setting) if w]
+        rate = f" @ {self.fps:g} fps" if self.fps else ""
+        return ", ".join(words) + f", {self.width}x{self.height}{rate}"
+
+    @property
+    def eis(self) -> bool | None:
+        """Whether the profile was calibrated with electronic stabilisation on (None: not said)."""
+        return stabilization_state(f"{self.lens} {self.setting}")
+
+    @property
+    def lens_class(self) -> str:
+        """The lens class of the profile's words (``"wide"``, ``"linear"``, ...; ``""``: none)."""
+        return lens_class(f"{self.lens} {self.setting}", self.model)
+
+
+@dataclass(frozen=True)
+class LensMatch:
+    """A profile scaled to a video of ``width`` x ``height`` pixels (display orientation).
+
+    ``fx, fy, cx, cy`` in pixels of the video; ``distortion`` OpenCV fisheye ``k1..k4``;
+    ``readout_ms`` the profile's frame readout time (ms, negative: bottom row first) or None;
+    ``candidates`` how many profiles tied for the choice, ``spread`` their focal lengths' relative
+    spread; ``reason`` in words.
+    """
+
+    profile: LensProfile
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: tuple[float, float, float, float]
+    readout_ms: float | None
+    candidates: int
+    spread: float
+    reason: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready description."""
+        return {
+            "profile": self.profile.name,
+            "calibration_size": [self.profile.width, self.profile.height],
+            "official": self.profile.official,
+            "rms_px": self.profile.rms,
+            "focal_px": round(0.5 * (self.fx + self.fy), 3),
+            "distortion_fisheye_k": [round(k, 6) for k in self.distortion],
+            "readout_ms": self.readout_ms,
+            "candidates": self.candidates,
+            "spread": round(self.spread, 4),
+            "reason": self.reason,
+        }
+
+
+@dataclass(frozen=True)
+class LensLookup:
+    """The outcome of :func:`find_profile`: ``match`` (or None) and, in words, why."""
+
+    match: LensMatch | None
+    reason: str
+
+
+def _norm(text: str) -> str:
+    return re.sub(r"[^0-9a-z]+", "", str(text).lower())
+
+
+def model_key(brand: str | None, model: str | None) -> str:
+    """A camera model compared without case, punctuation, spaces or a leading brand name."""
+    b, m = _norm(brand or ""), _norm(model or "")
+    if b and m.startswith(b):
+        m = m[len(b) :]
+    return m
+
+
+def lens_class(text: str, model: str = "") -> str:
+    """The lens class named by ``text`` (profile lens and setting words), ``""`` when none.
+
+    ``"max"`` alone is GoPro MAX's Max SuperView on the MAX, and the Max Lens Mod on a HERO."""
+    t = str(text).lower()
+    for name, pattern in _LENS_WORDS:
+        if re.search(pattern, t):
+            if name in ("max", "max wide"):
+                is_max = model_key("", model) in ("max", "gopromax")
+                return ("max superview" if name == "max" else "wide") if is_max else "max lens mod"
+            return name
+    return ""
+
+
+def stabilization_state(text: str) -> bool | None:
+    """Whether words such as ``"HS EIS"`` (True) or ``"NO-EIS"`` (False) say electronic
+    stabilisation was on; None when they say nothing."""
+    t = str(text).lower()
+    if re.search(_EIS_OFF, t):
+        return False
+    if re.search(_EIS_ON, t):
+        return True
+    return None
+
+
+@functools.cache
+def _index() -> tuple[list[str], dict, dict[str, list[int]]]:
+    """The shipped index: its strings, its columns, and the rows of each camera model key
+    (loaded once per process, about 0.3 s; profiles are built only for the model asked for)."""
+    raw = resources.files("egovid.data").joinpath("lens_profiles.json.gz").read_bytes()
+    doc = json.loads(gzip.decompress(raw))
+    strings, cols = doc["strings"], doc["columns"]
+    keys: dict[tuple[int, int], str] = {}
+    rows: dict[str, list[int]] = {}
+    for i, pair in enumerate(zip(cols["brand"], cols["model"], strict=True)):
+        key = keys.get(pair)
+        if key is None:
+            key = keys[pair] = model_key(strings[pair[0]], strings[pair[1]])
+        rows.setdefault(key, []).append(i)
+    return strings, cols, rows
+
+
+def _profile(i: int) -> LensProfile:
+    strings, cols, _ = _index()
+
+    def s(name: str) -> str:
+        return strings[cols[name][i]]
+
+    return LensProfile(
+        brand=s("brand"),
+        model=s("model"),
+        lens=s("lens"),
+        setting=s("setting"),
+        width=int(cols["w"][i]),
+        height=int(cols["h"][i]),
+        fps=cols["fps"][i],
+        fx=float(cols["fx"][i]),
+        fy=float(cols["fy"][i]),
+        cx=float(cols["cx"][i]),
+        cy=float(cols["cy"][i]),
+        distortion=tuple(float(cols[k][i] or 0.0) for k in ("k1", "k2", "k3", "k4")),
+        rms=cols["rms"][i],
+        images=int(cols["images"][i]),
+        official=bool(cols["official"][i]),
+        readout_ms=cols["readout_ms"][i],
+        stretch=float(cols["stretch"][i] or 1.0),
+        digital_lens=s("digital_lens"),
+        compatible=tuple(tuple(c) for c in cols["compatible"][i]),
+    )
+
+
+def profiles_of(brand: str | None, model: str | None) -> tuple[LensProfile, ...]:
+    """The profiles of one camera model (compared as :func:`model_key` does)."""
+    rows = _index()[2].get(model_key(brand, model), [])
+    return tuple(_profile(i) for i in rows)
+
+
+def load_profiles() -> tuple[LensProfile, ...]:
+    """All profiles of the shipped index."""
+    return tuple(_profile(i) for i in range(len(_index()[1]["w"])))
+
+
+def _lens_words(text: str) -> set[str]:
+    return {w for w in re.split(r"[^0-9a-z.]+", str(text).lower()) if w and w not in ("f", "mm", "lens")}
+
+
+def find_profile(
+    brand: str | None,
+    model: str | None,
+    width: int,
+    height: int,
+    *,
+    lens: str | None = None,
+    stabilized: bool | None = None,
+    fps: float | None = None,
+    focal_px: float | None = None,
+) -> LensLookup:
+    """The profile of a camera for a ``width`` x ``height`` video (pixels, display orientation)
+    recorded at ``fps``; see the module docstring for the rules.
+
+    ``lens``: a GoPro lens-mode code (``"W"``, ``"M"``...) or a lens name; ``stabilized``: whether
+    the camera stabilised the picture electronically (None: unknown, then only profiles that
+    agree among themselves are used); ``focal_px``: a focal length measured on the video (the
+    gyro fit, pixels), which picks the lens when the file names none: the one lens whose profile
+    is within :data:`MAX_SPREAD` of it. Never raises for unknown cameras: the reason says why
+    nothing matched.
+    """
+    key = model_key(brand, model)
+    camera = " ".join(x for x in (brand, model) if x) or "the camera"
+    if not key:
+        return LensLookup(None, "the file names no camera model")
+    group = profiles_of(brand, model)
+    if not group and brand:  # some profiles file the brand inside the model name only
+        group = profiles_of("", f"{brand}{model}")
+    if not group:
+        return LensLookup(None, f"no lens profile of {camera}")
+    portrait = height > width
+    w, h = (height, width) if portrait else (width, height)  # profiles are landscape
+    aspect = w / h
+    usable = [
+        p
+        for p in group
+        if not p.digital_lens
+        and abs(p.stretch - 1.0) < 1e-6
+        and abs((p.width / p.height) / aspect - 1) <= MAX_ASPECT_ERROR
+    ]
+    if not usable:
+        return LensLookup(None, f"no profile of {camera} at the aspect ratio {w}:{h} without a digital lens")
+    # Lens.
+    want = LENS_CLASSES.get(lens.strip().upper()) if lens and len(lens.strip()) == 1 else None
+    if lens and want is None and len(lens.strip()) > 1:
+        words = _lens_words(lens)
+        chosen = [p for p in usable if (pw := _lens_words(p.lens)) and (pw <= words or words <= pw)]
+        lens_note = f"lens {lens}"
+    elif want is not None:
+        if want in ("superview", "hyperview"):
+            return LensLookup(None, f"{camera}'s {want} lens stretches the picture non-linearly (no fisheye profile)")
+        chosen = [p for p in usable if p.lens_class == want]
+        lens_note = f"{want} lens"
+    else:
+        chosen = [p for p in usable if p.lens_class not in ("anamorphic", "max lens mod")]
+        named = sorted({p.lens_class for p in chosen} - {""})
+        lens_note = "no lens mode in the file"
+        if len(named) > 1 and focal_px:
+            near = sorted(
+                {p.lens_class for p in chosen if p.lens_class and abs(p.fx * w / p.width / focal_px - 1) <= MAX_SPREAD}
+            )
+            if len(near) == 1:
+                chosen = [p for p in chosen if p.lens_class == near[0]]
+                named = near
+                lens_note = f"{near[0]} lens, the one the measured {focal_px:.0f} px focal length fits"
+        if len(named) > 1:
+            return LensLookup(None, f"the file does not say which of {camera}'s lenses ({', '.join(named)}) was used")
+    if not chosen:
+        return LensLookup(None, f"no profile of {camera} with its {lens_note}")
+    # Stabilisation.
+    if stabilized is not None:
+        agree = [p for p in chosen if p.eis is stabilized]
+        neutral = [p for p in chosen if p.eis is None]
+        chosen = agree or neutral
+        if not chosen:
+            state = "on" if stabilized else "off"
+            return LensLookup(None, f"no profile of {camera} ({lens_note}) with electronic stabilisation {state}")
+
+    # Picture: same size (or compatible) first, then the nearest frame rate, official, low error.
+    def exact(p: LensProfile) -> bool:
+        return (p.width, p.height) == (w, h) or (w, h) in p.compatible
+
+    def rank(p: LensProfile) -> tuple:
+        fps_err = abs(math.log(p.fps / fps)) if fps and p.fps and p.fps > 0 else 9.0
+        return (
+            0 if exact(p) else 1,
+            0 if stabilized is None or p.eis is stabilized else 1,
+            round(fps_err, 2),
+            0 if p.official else 1,
+        )
+
+    best = min(rank(p) for p in chosen)
+    tied = [p for p in chosen if rank(p) == best]
+    if focal_px:  # a measured focal length also tells stabilised (cropped) from plain calibrations
+        fits = [p for p in tied if abs(p.fx * w / p.width / focal_px - 1) <= MAX_SPREAD]
+        tied = fits or tied
+    rel = [p.fx / p.width for p in tied]
+    spread = max(rel) / min(rel) - 1.0
+    if spread > MAX_SPREAD and len(tied) > 2:
+        # Community profiles of one mode scatter: keep the middle half before judging.
+        order = sorted(range(len(tied)), key=lambda k: rel[k])
+        mid = order[len(order) // 4 : len(order) - len(order) // 4]
+        tied = [tied[k] for k in mid]
+        rel = [rel[k] for k in mid]
+        spread = max(rel) / min(rel) - 1.0
+    if spread > MAX_SPREAD:
+        return LensLookup(
+            None,
+            f"{len(tied)} profiles of {camera} ({lens_note}) disagree on the focal length by {100 * spread:.0f} %",
+        )
+    medoid = min(range(len(tied)), key=lambda k: (sum(abs(rel[k] - r) for r in rel), tied[k].rms or 9.0))
+    p = tied[medoid]
+    s = w / p.width
+    fx, fy = p.fx * s, p.fy * (h / p.height)
+    cx, cy = (p.cx + 0.5) * s - 0.5, (p.cy + 0.5) * (h / p.height) - 0.5
+    if portrait:  # rotated a quarter turn: the profile's x is the picture's y
+        fx, fy, cx, cy = fy, fx, (h - 1) - cy, cx
+    readout = (
+        p.readout_ms if exact(p) and p.readout_ms and (not fps or not p.fps or abs(p.fps / fps - 1) < 0.02) else None
+    )
+    how = "at this size" if exact(p) else f"scaled {s:.4g}x"
+    reason = f"{p.name} ({how}; {lens_note}; {len(tied)} profile(s) agree within {100 * spread:.1f} %)"
+    return LensLookup(
+        LensMatch(p, width, height, fx, fy, cx, cy, p.distortion, readout, len(tied), spread, reason), reason
+    )

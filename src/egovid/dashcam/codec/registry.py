@@ -7,6 +7,8 @@ blob's magic (decoding), never by string comparisons spread over the code.
   written before AV1 is VP9.
 * ``av1`` (:mod:`egovid.dashcam.codec.av1`, SVT-AV1 + dav1d): standalone only; first drives and
   pieces without an older drive of their path and light.
+* ``aom`` (:mod:`egovid.dashcam.codec.aom_segment`, libaom through ctypes): AV1 against the older
+  drive's aligned frames injected as a reference on both sides (the VP9 design on AV1).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from egovid.core.errors import EgovidError
-from egovid.dashcam.codec import av1, segment, vpx
+from egovid.dashcam.codec import aom, aom_segment, av1, segment, vpx
 from egovid.dashcam.codec.settings import EncoderSettings
 
 
@@ -41,6 +43,7 @@ BACKENDS: dict[str, Backend] = {
     for b in (
         Backend("vp9", True, segment.encode_segment, segment.decode_runs, vpx.self_test),
         Backend("av1", False, av1.encode_segment, av1.decode_runs, av1.self_test),
+        Backend("aom", True, aom_segment.encode_segment, aom_segment.decode_runs, aom.self_test),
     )
 }
 

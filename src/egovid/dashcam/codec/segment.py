@@ -1,8 +1,9 @@
 """Segment bitstreams: the container every codec backend writes (header, random-access run
-layout, length-prefixed packets; the magic names the codec: ``EGV9`` VP9, ``EGA1`` AV1, see
-:mod:`egovid.dashcam.codec.registry`), the writer they share (:class:`SegmentWriter`: digests,
-PSNR, spool), and the VP9 backend: VP9 with the older drive's aligned frames as a free reference
-(§14.2). The AV1 backend is :mod:`egovid.dashcam.codec.av1`.
+layout, length-prefixed packets; the magic names the codec: ``EGV9`` VP9, ``EGA1`` AV1
+(SVT-AV1), ``EGAM`` AV1 joint (libaom), see :mod:`egovid.dashcam.codec.registry`), the writer
+they share (:class:`SegmentWriter`: digests, PSNR, spool), and the VP9 backend: VP9 with the
+older drive's aligned frames as a free reference (§14.2). The AV1 backends are
+:mod:`egovid.dashcam.codec.av1` and :mod:`egovid.dashcam.codec.aom_segment`.
 
 A *segment* is a run of a drive's frames coded as one VP9 stream: **intra** (a root, a plain VP9
 stream) or **joint** (every frame after the keyframe may also predict from the *baseline*: the
@@ -56,7 +57,7 @@ from egovid.dashcam.codec import vpx
 from egovid.dashcam.codec.settings import EncoderSettings
 
 #: Blob magic per codec (the layout after it is the same: header, run layout, packets).
-MAGICS = {"vp9": b"EGV9", "av1": b"EGA1"}
+MAGICS = {"vp9": b"EGV9", "av1": b"EGA1", "aom": b"EGAM"}
 MAGIC = MAGICS["vp9"]
 VERSION = 3
 VERSION_HELD = 4  # version 3 with runs that start with START_BASELINE_HELD
@@ -203,7 +204,8 @@ def parse_header(buf: bytes) -> tuple[SegmentLayout, int]:
         raise _damaged()
     magic, version, w, h, _pw, _ph, n, q, gop = _HEADER.unpack_from(buf, 0)
     codec = next((name for name, m in MAGICS.items() if m == magic), None)
-    versions = (1, 2, 3, 4) if codec == "vp9" else (3,)  # an AV1 blob: version 3's layout, keyframe runs
+    # an AV1 blob: version 3's layout, keyframe runs; a libaom blob: 3, or 4 with joint runs
+    versions = {"vp9": (1, 2, 3, 4), "aom": (3, 4)}.get(codec, (3,))
     if codec is None or version not in versions or (version == 1 and gop != 0) or (version > 1 and gop < 1):
         raise EgovidError("segment blob has an unknown format", "the archive is damaged or from another version")
     gop = max(gop, 1)
@@ -220,8 +222,10 @@ def parse_header(buf: bytes) -> tuple[SegmentLayout, int]:
         off += runs
     lay = SegmentLayout(w, h, q, gop, refresh, starts, n, codec)
     allowed = (START_KEY, START_BASELINE, START_BASELINE_HELD) if version >= 4 else (START_KEY, START_BASELINE)
-    if codec != "vp9":
+    if codec == "av1" or (codec == "aom" and version < 4):
         allowed = (START_KEY,)
+    elif codec == "aom":
+        allowed = (START_KEY, START_BASELINE_HELD)
     if any(s not in allowed for s in starts) or len(starts) != len(substreams(lay.frames, refresh)):
         raise _damaged("has an inconsistent layout")
     return lay, off

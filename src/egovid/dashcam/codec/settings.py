@@ -8,18 +8,21 @@ from dataclasses import dataclass
 
 from egovid.core.errors import EgovidError
 
-#: Speed ranges per codec: libvpx cpu-used, SVT-AV1 preset (higher = faster in both).
-SPEEDS = {"vp9": (0, 9), "av1": (0, 13)}
+#: Speed ranges per codec: libvpx cpu-used, SVT-AV1 preset, libaom cpu-used (higher = faster in
+#: all; libaom's good-quality mode stops at 9 and codes 7-9 as 6, its realtime mode goes to 10).
+SPEEDS = {"vp9": (0, 9), "av1": (0, 13), "aom": (0, 10)}
 
 
 @dataclass(frozen=True)
 class EncoderSettings:
-    """``codec``: ``vp9`` (libvpx; can code against the older drive) or ``av1`` (SVT-AV1, decoded
-    with dav1d; standalone only); fixed quantiser ``q`` (0-63: libvpx's quantiser, SVT-AV1's CRF);
-    ``speed``: libvpx cpu-used (0-9) or SVT-AV1 preset (0-13); ``realtime``: libvpx's realtime
-    deadline; ``threads``: encoder threads (SVT-AV1: its logical processors); ``tile_columns``
-    (log2) and ``row_mt``: libvpx's multi-threading (the bitstream decodes to the same pictures
-    whatever the threads); coding structure ``gop`` (VP9 only: 1 = low delay; G > 1 = every G-th
+    """``codec``: ``vp9`` (libvpx; can code against the older drive), ``av1`` (SVT-AV1, decoded
+    with dav1d; standalone only) or ``aom`` (AV1 by libaom; can code against the older drive);
+    fixed quantiser ``q`` (0-63: libvpx's and libaom's quantiser, SVT-AV1's CRF); ``speed``: libvpx
+    cpu-used (0-9), SVT-AV1 preset (0-13) or libaom cpu-used (0-10); ``realtime``: libvpx's
+    realtime deadline, libaom's realtime mode; ``threads``: encoder threads (SVT-AV1: its logical
+    processors); ``tile_columns`` (log2) and ``row_mt``: libvpx's and libaom's multi-threading (the
+    bitstream decodes to the same pictures whatever the threads); coding structure ``gop`` (VP9
+    only: 1 = low delay; G > 1 = every G-th
     frame an *anchor* predicted from the anchor before it, the frames between coded after it from
     the previous frame and the anchor ahead, at quantiser ``q + gop_dq``; see
     :mod:`egovid.dashcam.codec.segment`; SVT-AV1 chooses its own hierarchical structure) and
@@ -48,6 +51,8 @@ class EncoderSettings:
         lo, hi = SPEEDS[self.codec]
         if not lo <= self.speed <= hi:
             raise EgovidError(f"--speed {self.speed} is outside {lo}-{hi} for {self.codec}", "use the preset's")
+        if self.codec == "aom" and not self.realtime and self.speed > 9:
+            raise EgovidError(f"libaom cpu-used {self.speed} needs its realtime mode", "use 0-9 (6 is its fastest)")
         if not 0 <= self.start_speed <= 9:
             raise EgovidError(f"run-start cpu-used {self.start_speed} is outside 0-9", "use 0 (= speed) or e.g. 5")
         if not 1 <= self.threads <= 64:

@@ -384,6 +384,7 @@ def test_a_trip_is_probed_and_demuxed_once_per_file(tmp_path, monkeypatch):
     the stages demuxed every file again, a batch a third time), then decoded once."""
     import collections
     import datetime as dt
+    import importlib
 
     import av
 
@@ -418,11 +419,12 @@ def test_a_trip_is_probed_and_demuxed_once_per_file(tmp_path, monkeypatch):
     def counted(kind, real):
         return lambda path, *a, **k: calls[kind].update([Path(path).name]) or real(path, *a, **k)
 
-    real_times = core_video.frame_times
-    for mod in (core_video, sources, stages):
+    probing = importlib.import_module("egovid.core.video.probe")  # the module; `probe` is also its function
+    real_times = probing.frame_times
+    for mod in (core_video, probing, sources, stages):
         monkeypatch.setattr(mod, "frame_times", counted("frame times", real_times))
-    monkeypatch.setattr(core_video, "_probe", counted("probe", core_video._probe))
-    core_video._PROBED.clear()
+    monkeypatch.setattr(probing, "_probe", counted("probe", probing._probe))
+    probing._PROBED.clear()
     ar = Archive.create(tmp_path / "archive")
     result = ingest_videos(ar, [tmp_path / "card"], gps=gps)
     (rep,) = result.reports

@@ -75,7 +75,7 @@ def saving_colour(saving: float | None) -> str:
     return "#" + "".join(f"{round(p + (q - p) * f):02x}" for p, q in zip(a, b, strict=True))
 
 
-def _simplified(lat: np.ndarray, lon: np.ndarray, tolerance_m: float) -> np.ndarray:
+def simplified_track(lat: np.ndarray, lon: np.ndarray, tolerance_m: float) -> np.ndarray:
     """(N, 2) lat/lon of a track simplified (Douglas-Peucker in metres) to ``tolerance_m``."""
     import shapely  # loaded only when a map is drawn
 
@@ -183,7 +183,7 @@ def render_map(
                 "info": d.info,
                 "stretches": [
                     {
-                        "pts": np.round(_simplified(s.lat, s.lon, tolerance_m), 7).tolist(),
+                        "pts": np.round(simplified_track(s.lat, s.lon, tolerance_m), 7).tolist(),
                         "saving": s.saving,
                         "savingColour": saving_colour(s.saving),
                         "info": s.info,

@@ -26,6 +26,8 @@ a 4xx status for bad input, 500 for a failure, and never stops the server.
 
 from __future__ import annotations
 
+import contextlib
+import datetime as dt
 import re
 import shutil
 import tempfile
@@ -33,7 +35,9 @@ import threading
 import uuid
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
@@ -46,6 +50,7 @@ from starlette.staticfiles import StaticFiles
 from egovid.core.errors import EgovidError, user_error
 from egovid.serve.access import AccessMiddleware, AccessPolicy, new_token
 from egovid.serve.archive_ops import ArchiveOps, DriveNotFoundError
+from egovid.serve.fragments import EncodeSettings, mime_codec
 from egovid.serve.streams import StreamError, StreamService
 
 CLIP_FILE = re.compile(r"^clip\.(mp4|gpx)$")
@@ -153,7 +158,6 @@ def _floats(text: str | None, n: int, name: str) -> tuple[float, ...] | None:
 
 
 def _utc(text: str | None, name: str) -> float | None:
-    import datetime as dt
 
     if text is None or text == "":
         return None
@@ -168,7 +172,6 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
     """The web app for ``config`` (``ops``: an already open archive). Its state (archive, streams,
     clips) is closed when the app shuts down."""
     ops = ops or ArchiveOps(config.archive)
-    from egovid.serve.fragments import EncodeSettings
 
     streams = StreamService(
         ops.stream_source,
@@ -180,7 +183,6 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
     token = config.token or new_token()
     tiles_origin = None
     if config.tiles:
-        from urllib.parse import urlsplit
 
         u = urlsplit(config.tiles.replace("{s}", "a"))
         tiles_origin = f"{u.scheme}://{u.netloc}" if u.scheme in ("http", "https") else None
@@ -224,7 +226,6 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
         got = await call(streams.chunk, drive_id(request), int(request.path_params["k"]), viewer=viewer)
         if isinstance(got, Response):
             return got
-        from egovid.serve.fragments import mime_codec
 
         return Response(got, media_type="video/mp4", headers={"x-egovid-codec": mime_codec(got),
                                                               "cache-control": "private, max-age=600"})  # fmt: skip
@@ -307,7 +308,6 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
     async def not_found(request: Request, exc: HTTPException) -> Response:
         return JSONResponse({"error": exc.detail}, status_code=exc.status_code)
 
-    from importlib import resources
 
     data = resources.files("egovid.data")
     routes = [
@@ -339,7 +339,6 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
         kinds[kind] = n + 1
         routes.append(Mount(f"/reports/{kind}/{n}", app=StaticFiles(directory=str(folder), html=True)))
 
-    import contextlib
 
     @contextlib.asynccontextmanager
     async def lifespan(app):

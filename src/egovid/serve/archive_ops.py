@@ -18,6 +18,17 @@ from pathlib import Path
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.core.video import ColourTags
+from egovid.dashcam.archive.fleetstore import FleetStore
+from egovid.dashcam.archive.store import open_archive
+from egovid.dashcam.clip import plan_clip, write_clip
+from egovid.dashcam.extract import SegmentSnapshot, drive_frames, read_ahead, reference_segments
+from egovid.dashcam.find import Query, search
+from egovid.dashcam.forget import forget, set_lock
+from egovid.dashcam.mapview import simplified_track
+from egovid.dashcam.report import archive_report
+from egovid.dashcam.route.clock import iso
+from egovid.dashcam.route.tracks import derive_speed_bearing
 from egovid.serve.streams import StreamSource
 
 
@@ -26,7 +37,6 @@ class DriveNotFoundError(EgovidError):
 
 
 def _iso(t: float) -> str:
-    from egovid.dashcam.route.clock import iso
 
     return iso(t)
 
@@ -45,8 +55,6 @@ class ArchiveOps:
     def _open(self):
         got = getattr(self._local, "archive", None)
         if got is None:
-            from egovid.dashcam.archive.fleetstore import FleetStore
-            from egovid.dashcam.archive.store import open_archive
 
             ar = open_archive(self.root)
             got = (ar, FleetStore(ar.catalogue))
@@ -75,8 +83,6 @@ class ArchiveOps:
     def overview(self) -> dict:
         """Every live drive (id, name, kind, lock, start, length, size, storage, saving, paths,
         simplified track for the map) and the archive's totals."""
-        from egovid.dashcam.mapview import _simplified
-        from egovid.dashcam.report import archive_report
 
         ar, fleet = self._open()
         rep = archive_report(ar)
@@ -88,7 +94,7 @@ class ArchiveOps:
             r = by_name.get(d.name, {})
             segs = ar.segments(d.id)
             track = fleet.track(d.id)
-            pts = np.round(_simplified(track[1], track[2], 2.0), 7).tolist() if track is not None else []
+            pts = np.round(simplified_track(track[1], track[2], 2.0), 7).tolist() if track is not None else []
             paths = sorted({s.path_id for s in ar.catalogue.sequences(drive_id=d.id)})
             rows.append({
                 "id": d.id, "name": d.name, "kind": meta.kind, "channel": meta.channel,
@@ -113,7 +119,6 @@ class ArchiveOps:
         """The GPS fixes of a drive on its video clock: ``t`` (seconds from the drive's first frame),
         ``lat``/``lon`` (degrees), ``speed`` (m/s) and ``accel`` (m/s², along the track), both
         derived from the positions (smoothed over ~5 fixes, as ingest does for logs without speed)."""
-        from egovid.dashcam.route.tracks import _derive
 
         d = self._drive(drive_id)
         _ar, fleet = self._open()
@@ -123,7 +128,7 @@ class ArchiveOps:
         t, lat, lon = track
         futc = fleet.frame_utc(d.id, d.fps)
         video_t = np.interp(t, futc, np.arange(len(futc)) / d.fps)
-        speed, _ = _derive(t, lat, lon, None, None)
+        speed, _ = derive_speed_bearing(t, lat, lon, None, None)
         accel = np.gradient(speed, t) if len(t) > 1 else np.zeros(len(t))
         return {
             "drive": d.id,
@@ -143,8 +148,6 @@ class ArchiveOps:
         the archive's checked decoder (every random-access run compared with the encoder's digest),
         run in a thread of its own up to 8 frames ahead of the encoder. Chunks are one
         random-access period long (24 frames when the drive has none)."""
-        from egovid.core.video import ColourTags
-        from egovid.dashcam.extract import SegmentSnapshot, drive_frames, read_ahead, reference_segments
 
         d = self._drive(drive_id)
         ar, fleet = self._open()
@@ -172,7 +175,6 @@ class ArchiveOps:
     ) -> list[dict]:
         """``dashcam find``: the stretches matching every criterion given (degrees, metres, UTC
         seconds), each with its drive id and its start and end on the drive's video clock (s)."""
-        from egovid.dashcam.find import Query, search
 
         ar, fleet = self._open()
         found = search(ar, Query(near=near, radius=radius, bbox=bbox, t_from=t_from, t_to=t_to))
@@ -186,7 +188,6 @@ class ArchiveOps:
     def clip(self, drive_id: int, t: float, before: float, after: float, out: Path) -> dict:
         """``dashcam clip``: ``before`` / ``after`` seconds around second ``t`` of the drive's video
         clock, written to ``out`` (an .mp4, its .gpx beside it); returns what ``write_clip`` wrote."""
-        from egovid.dashcam.clip import plan_clip, write_clip
 
         d = self._drive(drive_id)
         ar, fleet = self._open()
@@ -200,7 +201,6 @@ class ArchiveOps:
     # -- changes ------------------------------------------------------------------------------------
     def set_lock(self, drive_id: int, locked: bool, note: str | None = None) -> dict:
         """``dashcam lock`` / ``unlock`` one drive."""
-        from egovid.dashcam.forget import set_lock
 
         ar, _ = self._open()
         (d,) = set_lock(ar, [str(int(self._drive(drive_id).id))], locked, note)
@@ -209,7 +209,6 @@ class ArchiveOps:
     def forget(self, drive_ids: list[int], *, dry_run: bool) -> dict:
         """``dashcam forget`` the drives (``dry_run``: only what it would do: the drives forgotten,
         those kept as hidden references and the live drives coded against them, bytes freed)."""
-        from egovid.dashcam.forget import forget
 
         for i in drive_ids:
             self._drive(i)

@@ -26,8 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from egovid.core.errors import user_error
 from egovid.core.video import ColourTags
-from egovid.serve.fragments import EncodeSettings, encode_chunk
+from egovid.serve.fragments import EncodeSettings, encode_chunk, output_size
 
 
 class StreamError(Exception):
@@ -156,7 +157,6 @@ class Producer:
         except StopIteration:
             self.error = StreamError(f"drive {src.drive_id} ended before frame {src.frames_total}", 500)
         except Exception as exc:  # kept for the viewers of this stream; the server goes on
-            from egovid.core.errors import user_error
 
             found = user_error(exc)
             text = found.one_line() if found is not None else f"{type(exc).__name__}: {exc}"
@@ -214,7 +214,6 @@ class StreamService:
     def manifest(self, drive_id: int) -> dict:
         """What a player needs to ask for chunks: frame rate, size, frames, chunk length (frames)
         and count."""
-        from egovid.serve.fragments import output_size
 
         s = self.source(drive_id)
         w, h = output_size(s.width, s.height, self.settings.max_height)

@@ -96,13 +96,13 @@ class Segment:
     params: dict
 
 
-def _arr(blob: bytes | None, dtype, shape=(-1,)) -> np.ndarray:
+def array_from_le(blob: bytes | None, dtype, shape=(-1,)) -> np.ndarray:
     if blob is None:
         return np.zeros(0, dtype)
     return np.frombuffer(blob, dtype=np.dtype(dtype).newbyteorder("<")).astype(dtype).reshape(shape)
 
 
-def _blob(a: np.ndarray, dtype) -> bytes:
+def le_bytes(a: np.ndarray, dtype) -> bytes:
     return np.ascontiguousarray(a, dtype=np.dtype(dtype).newbyteorder("<")).tobytes()
 
 
@@ -333,23 +333,23 @@ class _SqlCatalogue(Catalogue):
             )
 
     def add_path(self, points: np.ndarray, created_by: int | None) -> int:
-        pid = self._insert("INSERT INTO paths(created_by, points) VALUES(?, ?)", (created_by, _blob(points, "<f8")))
+        pid = self._insert("INSERT INTO paths(created_by, points) VALUES(?, ?)", (created_by, le_bytes(points, "<f8")))
         self._index_path(pid, np.asarray(points))
         return pid
 
     def update_path(self, path_id: int, points: np.ndarray) -> None:
-        self._q("UPDATE paths SET points = ? WHERE id = ?", (_blob(points, "<f8"), path_id))
+        self._q("UPDATE paths SET points = ? WHERE id = ?", (le_bytes(points, "<f8"), path_id))
         self._index_path(path_id, np.asarray(points))
 
     def path(self, path_id: int) -> PathRec:
         row = self._q("SELECT id, points, created_by FROM paths WHERE id = ?", (path_id,)).fetchone()
         if row is None:
             raise KeyError(path_id)
-        return PathRec(row[0], _arr(row[1], np.float64, (-1, 2)), row[2])
+        return PathRec(row[0], array_from_le(row[1], np.float64, (-1, 2)), row[2])
 
     def paths(self) -> list[PathRec]:
         return [
-            PathRec(r[0], _arr(r[1], np.float64, (-1, 2)), r[2])
+            PathRec(r[0], array_from_le(r[1], np.float64, (-1, 2)), r[2])
             for r in self._q("SELECT id, points, created_by FROM paths ORDER BY id")
         ]
 
@@ -362,13 +362,13 @@ class _SqlCatalogue(Catalogue):
         return self._insert(
             "INSERT INTO sequences(drive_id, path_id, frame_start, frame_end, positions, illum, segment_id) "
             "VALUES(?,?,?,?,?,?,?)",
-            (drive_id, path_id, frame_start, frame_end, _blob(positions, "<f4"), _blob(illum, "<f8"), segment_id),
+            (drive_id, path_id, frame_start, frame_end, le_bytes(positions, "<f4"), le_bytes(illum, "<f8"), segment_id),
         )
 
     def update_sequence(self, seq_id, path_id, frame_start, frame_end, positions) -> None:
         self._q(
             "UPDATE sequences SET path_id = ?, frame_start = ?, frame_end = ?, positions = ? WHERE id = ?",
-            (path_id, frame_start, frame_end, _blob(positions, "<f4"), seq_id),
+            (path_id, frame_start, frame_end, le_bytes(positions, "<f4"), seq_id),
         )
 
     def sequences(self, *, drive_id=None, path_id=None) -> list[Sequence]:
@@ -384,7 +384,9 @@ class _SqlCatalogue(Catalogue):
             sql += " WHERE " + " AND ".join(cond)
         sql += " ORDER BY drive_id, frame_start"
         return [
-            Sequence(r[0], r[1], r[2], r[3], r[4], _arr(r[5], np.float32), _arr(r[6], np.float64), r[7])
+            Sequence(
+                r[0], r[1], r[2], r[3], r[4], array_from_le(r[5], np.float32), array_from_le(r[6], np.float64), r[7]
+            )
             for r in self._q(sql, args)
         ]
 
@@ -401,7 +403,7 @@ class _SqlCatalogue(Catalogue):
                 frame_end,
                 mode,
                 ref_drive_id,
-                _blob(refmap, "<i4"),
+                le_bytes(refmap, "<i4"),
                 json.dumps(align),
                 blob,
                 nbytes,
@@ -417,7 +419,7 @@ class _SqlCatalogue(Catalogue):
             r[3],
             r[4],
             r[5],
-            _arr(r[6], np.int32),
+            array_from_le(r[6], np.int32),
             json.loads(r[7] or "{}"),
             r[8],
             r[9],

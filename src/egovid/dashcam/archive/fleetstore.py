@@ -28,7 +28,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from egovid.core.errors import EgovidError
-from egovid.dashcam.archive.catalogue import Catalogue, Drive, PostgresCatalogue, Segment, SqliteCatalogue, _arr, _blob
+from egovid.dashcam.archive.catalogue import (
+    Catalogue,
+    Drive,
+    PostgresCatalogue,
+    Segment,
+    SqliteCatalogue,
+    array_from_le,
+    le_bytes,
+)
 
 FLEET_SCHEMA = 1
 CHUNK = 32  # fixes per spatial-index entry
@@ -226,7 +234,7 @@ class FleetStore:
             t, lat, lon = (np.asarray(a, np.float64) for a in track)
             self._q(
                 "INSERT INTO drive_tracks(drive_id, t, lat, lon, source) VALUES(?,?,?,?,?)",
-                (meta.drive_id, _blob(t, "<f8"), _blob(lat, "<f8"), _blob(lon, "<f8"), track_source),
+                (meta.drive_id, le_bytes(t, "<f8"), le_bytes(lat, "<f8"), le_bytes(lon, "<f8"), track_source),
             )
             self._index_track(meta.drive_id, t, lat, lon)
 
@@ -295,7 +303,7 @@ class FleetStore:
         row = self._q("SELECT t, lat, lon FROM drive_tracks WHERE drive_id = ?", (drive_id,)).fetchone()
         if row is None:
             return None
-        return _arr(row[0], np.float64), _arr(row[1], np.float64), _arr(row[2], np.float64)
+        return array_from_le(row[0], np.float64), array_from_le(row[1], np.float64), array_from_le(row[2], np.float64)
 
     def frame_utc(self, drive_id: int, fps: float) -> np.ndarray:
         """UTC seconds of each frame of a drive, from its parts (frames evenly spaced within a file)."""

@@ -26,7 +26,7 @@ from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec.streams import archive_streams
 from egovid.dashcam.ingest.records import DriveInput, VideoProbe
 from egovid.dashcam.ingest.sources import FileSource, IngestPlan
-from egovid.dashcam.route.tracks import GpsTrack, _finish
+from egovid.dashcam.route.tracks import GpsTrack, finish_track
 from egovid.dashcam.route.trips import Trip
 
 ALREADY_IN = "already in the archive"  # why a file whose drive was ingested before is skipped
@@ -87,7 +87,7 @@ def _joined_track(sources: list[FileSource]) -> GpsTrack:
     t = np.concatenate([x.t for x in tracks])
     order = np.argsort(t, kind="stable")
     cols = [np.concatenate([getattr(x, k) for x in tracks])[order] for k in ("lat", "lon", "speed", "bearing")]
-    return _finish(t[order], *cols, "; ".join(sorted({x.source for x in tracks})), {})
+    return finish_track(t[order], *cols, "; ".join(sorted({x.source for x in tracks})), {})
 
 
 def prepare(

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from egovid.core.camera.gpmf import GpmfGps
-from egovid.core.camera.gps_check import GpsAgreement
+from egovid.core.camera.gps_check import GpsAgreement, compare
 from egovid.core.camera.tesla import TeslaTelemetry
 from egovid.core.errors import EgovidError
 from egovid.dashcam.route.tracks import as_float
@@ -78,7 +78,6 @@ def gpmf_rows(gps: GpmfGps, reader: str = "GoPro GPMF") -> GpsRows:
 def gopro_gps(gps: GpmfGps, second: list | None, name: str = "") -> GpsRows:
     """The GoPro fixes after the cross-check with telemetry-parser's reading ``second`` (see
     :func:`egovid.core.camera.gps_check.compare`); raises :class:`EgovidError` when they differ."""
-    from egovid.core.camera.gps_check import compare
 
     verdict = compare(gps, second)
     if verdict.checked and not verdict.agree:

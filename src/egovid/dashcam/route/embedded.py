@@ -43,7 +43,7 @@ from egovid.core.camera.gpmf import read_gpmf_gps
 from egovid.core.camera.gps_check import read_telemetry_parser_gps
 from egovid.core.times import plausible_utc
 from egovid.dashcam.route.camera_gps import GpsRows, exiftool_records, exiftool_rows, gopro_gps
-from egovid.dashcam.route.tracks import GpsTrack, _finish, nmea_fixes
+from egovid.dashcam.route.tracks import GpsTrack, finish_track, nmea_fixes
 
 _NMEA_LINE = re.compile(r"\$[A-Z]{2}[A-Z]{3},[^\r\n$]*")
 _GPS_TIME = re.compile(r"^(\d{4})[:\-](\d\d)[:\-](\d\d)[ T](\d\d):(\d\d):(\d\d(?:\.\d+)?)\s*(Z|[+\-]\d\d:?\d\d)?$")
@@ -131,7 +131,7 @@ def _embedded(rows: list[tuple], reader: str, dropped: dict[str, int]) -> Embedd
     a = a[keep]
     if len(a) < 2:
         return None
-    track = _finish(a[:, 0], a[:, 2], a[:, 3], a[:, 4], a[:, 5], reader, dropped)
+    track = finish_track(a[:, 0], a[:, 2], a[:, 3], a[:, 4], a[:, 5], reader, dropped)
     return EmbeddedGps(track, a[:, 1], reader, dropped)
 
 

@@ -76,7 +76,9 @@ def project(lat, lon, origin: tuple[float, float]) -> np.ndarray:
     return np.stack([x, y], axis=-1)
 
 
-def _derive(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, speed, bearing) -> tuple[np.ndarray, np.ndarray]:
+def derive_speed_bearing(
+    t: np.ndarray, lat: np.ndarray, lon: np.ndarray, speed, bearing
+) -> tuple[np.ndarray, np.ndarray]:
     """Speed and bearing where the file has none: from positions smoothed over ~5 fixes, since
     differentiating raw fixes turns metres of noise into metres per second."""
     xy = project(lat, lon, (float(lat[0]), float(lon[0])))
@@ -93,7 +95,7 @@ def _derive(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, speed, bearing) -> 
     return sp, be
 
 
-def _finish(t, lat, lon, speed, bearing, source, dropped) -> GpsTrack:
+def finish_track(t, lat, lon, speed, bearing, source, dropped) -> GpsTrack:
     t = np.asarray(t, dtype=float)
     lat, lon = np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
     # NaN or infinite times or positions are no fixes (a NaN origin would poison the archive).
@@ -112,7 +114,7 @@ def _finish(t, lat, lon, speed, bearing, source, dropped) -> GpsTrack:
     t = t[keep]
     if np.any(np.abs(lat) > 90) or np.any(np.abs(lon) > 180):
         raise EgovidError(f"{source} has latitudes/longitudes out of range", "check the file's columns")
-    speed, bearing = _derive(t, lat, lon, speed, bearing)
+    speed, bearing = derive_speed_bearing(t, lat, lon, speed, bearing)
     return GpsTrack(t, lat, lon, speed, bearing, source, dropped)
 
 
@@ -133,7 +135,7 @@ def read_gpx(path: Path) -> GpsTrack:
                 lat.append(p.latitude)
                 lon.append(p.longitude)
                 sp.append(p.speed if p.speed is not None else np.nan)
-    return _finish(t, lat, lon, sp, np.full(len(t), np.nan), str(path), dropped)
+    return finish_track(t, lat, lon, sp, np.full(len(t), np.nan), str(path), dropped)
 
 
 def read_nmea(path: Path) -> GpsTrack:
@@ -143,7 +145,7 @@ def read_nmea(path: Path) -> GpsTrack:
     if not rows:
         raise EgovidError(f"{path} contains no valid NMEA RMC/GGA fixes", _FIX)
     arr = np.array(rows, dtype=float)
-    return _finish(arr[:, 0], arr[:, 2], arr[:, 3], arr[:, 4], arr[:, 5], str(path), dropped)
+    return finish_track(arr[:, 0], arr[:, 2], arr[:, 3], arr[:, 4], arr[:, 5], str(path), dropped)
 
 
 def nmea_fixes(
@@ -237,7 +239,7 @@ def read_csv(path: Path) -> GpsTrack:
             be.append(float(row[col["bearing"]]) if "bearing" in col and row[col["bearing"]].strip() else np.nan)
         except (ValueError, IndexError):
             raise EgovidError(f"{path} line {n} is not a GPS fix: {','.join(row)[:60]}", _FIX) from None
-    return _finish(t, lat, lon, sp, be, str(path), {})
+    return finish_track(t, lat, lon, sp, be, str(path), {})
 
 
 def gps_beside(video: Path) -> Path:

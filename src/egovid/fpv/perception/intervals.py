@@ -135,7 +135,7 @@ def _interval(kind: int, h: float, d1: float, d2: float, p: float, thr: float) -
 
 
 @njit(cache=True)
-def _intervals(kind: int, theta: np.ndarray, h: float, p: float, thr: float) -> np.ndarray:
+def interval_kernel(kind: int, theta: np.ndarray, h: float, p: float, thr: float) -> np.ndarray:
     n = theta.shape[0] - 2
     out = np.empty((max(n, 0), 2))
     for k in range(n):
@@ -154,14 +154,14 @@ def yaw_pitch_intervals(theta_deg: np.ndarray, fov_deg: float, d_over_f: float, 
     axis, ``threshold_deg`` the largest trackable ``|PE|``.
     """
     theta = np.deg2rad(np.asarray(theta_deg, dtype=np.float64))
-    out = _intervals(0, theta, math.radians(fov_deg) / 2.0, 1.0 / d_over_f, math.radians(threshold_deg))
+    out = interval_kernel(0, theta, math.radians(fov_deg) / 2.0, 1.0 / d_over_f, math.radians(threshold_deg))
     return np.rad2deg(out)
 
 
 def roll_intervals(theta_deg: np.ndarray, fov_deg: float, d_over_f: float, threshold_deg: float) -> np.ndarray:
     """B(k) for a roll motion along one image direction with field of view ``fov_deg``."""
     theta = np.deg2rad(np.asarray(theta_deg, dtype=np.float64))
-    out = _intervals(1, theta, math.radians(fov_deg) / 2.0, d_over_f, math.radians(threshold_deg))
+    out = interval_kernel(1, theta, math.radians(fov_deg) / 2.0, d_over_f, math.radians(threshold_deg))
     return np.rad2deg(out)
 
 

@@ -22,9 +22,9 @@ import numpy as np
 from numba import njit
 
 from egovid.core.errors import EgovidError
-from egovid.fpv.perception.intervals import _intervals, roll_intervals, yaw_pitch_intervals
+from egovid.fpv.perception.intervals import interval_kernel, roll_intervals, yaw_pitch_intervals
 from egovid.fpv.perception.model import MODEL_FPS, ViewingModel, to_model_rate
-from egovid.fpv.perception.ve import _sve_windows, _ve_windows, sve_windows, ve_windows
+from egovid.fpv.perception.ve import sve_window_kernel, sve_windows, ve_window_kernel, ve_windows
 
 AXES = ("yaw", "pitch", "roll")
 METHODS = ("ve", "sve")
@@ -165,11 +165,11 @@ def axis_windows_kernel(a, col, kinds, shifts, fovs, halfs, ps, thr, n1, sacc, s
     theta = np.deg2rad(a[:, col])
     out = np.empty(0)
     for c in range(kinds.shape[0]):
-        iv = np.rad2deg(_intervals(kinds[c], theta, halfs[c], ps[c], thr))
+        iv = np.rad2deg(interval_kernel(kinds[c], theta, halfs[c], ps[c], thr))
         m = iv.shape[0]
         lo = iv[:, 0] + a[:m, shifts[c]]
         hi = iv[:, 1] + a[:m, shifts[c]]
-        w = _sve_windows(lo, hi, fovs[c], n1, literal) if sve else _ve_windows(lo, hi, fovs[c], n1, sacc)
+        w = sve_window_kernel(lo, hi, fovs[c], n1, literal) if sve else ve_window_kernel(lo, hi, fovs[c], n1, sacc)
         out = w if c == 0 else np.minimum(out, w)
     return out
 

@@ -39,7 +39,7 @@ from numba import njit
 
 
 @njit(cache=True)
-def _ve_windows(lo: np.ndarray, hi: np.ndarray, fov: float, n1: int, sacc: int) -> np.ndarray:
+def ve_window_kernel(lo: np.ndarray, hi: np.ndarray, fov: float, n1: int, sacc: int) -> np.ndarray:
     m_total = lo.shape[0]
     w_total = m_total - n1 + 1
     out = np.empty(max(w_total, 0))
@@ -76,11 +76,11 @@ def ve_windows(lo: np.ndarray, hi: np.ndarray, fov: float, window: int = 10, sac
     """
     lo = np.ascontiguousarray(lo, dtype=np.float64)
     hi = np.ascontiguousarray(hi, dtype=np.float64)
-    return _ve_windows(lo, hi, float(fov), int(window), int(saccade))
+    return ve_window_kernel(lo, hi, float(fov), int(window), int(saccade))
 
 
 @njit(cache=True)
-def _sve_windows(lo: np.ndarray, hi: np.ndarray, fov: float, n1: int, literal: bool) -> np.ndarray:
+def sve_window_kernel(lo: np.ndarray, hi: np.ndarray, fov: float, n1: int, literal: bool) -> np.ndarray:
     m_total = lo.shape[0]
     n = n1 - 1
     w_total = m_total - n1 + 1
@@ -113,7 +113,7 @@ def sve_windows(lo: np.ndarray, hi: np.ndarray, fov: float, window: int = 10, va
         raise ValueError(f"unknown SVE variant {variant!r}")
     lo = np.ascontiguousarray(lo, dtype=np.float64)
     hi = np.ascontiguousarray(hi, dtype=np.float64)
-    return _sve_windows(lo, hi, float(fov), int(window), variant == "thesis")
+    return sve_window_kernel(lo, hi, float(fov), int(window), variant == "thesis")
 
 
 def ve_bruteforce(lo, hi, fov: float, saccade: int = 6) -> tuple[float, float]:

@@ -84,7 +84,7 @@ class Case:
 
     @property
     def frames(self) -> int:
-        return int(round(self.seconds * self.fps))
+        return round(self.seconds * self.fps)
 
     @property
     def has_gyro(self) -> bool:
@@ -312,14 +312,11 @@ def render_case(
     centres = 0.5 * (edges[:-1] + edges[1:]) / coded_h
     k_rot = (case.rotation // 90) % 4
     with VideoWriter(out, case.width, case.height, case.fps, codec=case.codec, crf=crf, rotation=case.rotation) as w:
-        for k, t0 in enumerate(truth.times):
+        for _k, t0 in enumerate(truth.times):
             tb = t0 + centres * case.readout_s
             ang = truth.orientation(tb)
             Rb = matrix_from_euler(ang[:, 0], ang[:, 1], ang[:, 2]) @ C
-            if n_bands == 1:
-                img = renderer.render(Rb[0])
-            else:
-                img = renderer.render_rolling(list(Rb))
+            img = renderer.render(Rb[0]) if n_bands == 1 else renderer.render_rolling(list(Rb))
             w.write(np.ascontiguousarray(np.rot90(img, k_rot)), float(t0))
     return truth
 
@@ -335,4 +332,3 @@ def frame_shift_truth(truth: CaseTruth) -> np.ndarray:
     f = truth.case.intrinsics().focal
     a = np.radians(truth.angles)
     return np.stack([f * np.tan(a[:, 0]), -f * np.tan(a[:, 1])], axis=1)
-

@@ -44,11 +44,10 @@ from egovid.core.motion.estimate import estimate_motion
 from egovid.core.rotations import matrix_from_euler
 from egovid.fpv.stabilize.gyroflow_peer import plan_gyroflow, run_gyroflow
 from egovid.fpv.stabilize.measure import motion_scores
-from egovid.fpv.stabilize.path import fit_path
 from egovid.fpv.stabilize.pipeline import stabilize
 from egovid.fpv.stabilize.render import homographies, render_stabilized
 from egovid.fpv.stabilize.vidstab import run_vidstab
-from egovid.fpv.stabilize.visible import visible_target
+from egovid.fpv.stabilize.visible import visible_path
 from egovid.synth.testbed import CaseTruth, default_cases, render_case
 
 from _common import ROOT, cache_dir, report
@@ -92,8 +91,7 @@ def _fpmi(before: float, after: float) -> float:
 def render_visible(src: Path, dst: Path, original: np.ndarray, plan: np.ndarray, intr, fps: float):
     """egovid with the visible-shake layer below the plan (:mod:`egovid.fpv.stabilize.visible`):
     the plan low-passed as far as its FPMI allows, bent into the 1.10 zoom budget, rendered."""
-    vt = visible_target(plan, fps, intr)
-    fitted = fit_path(original, vt.target, intr, fps, max_zoom=1.10)
+    fitted, vt = visible_path(original, plan, intr, fps, max_zoom=1.10)
     R_old = matrix_from_euler(original[:, 0], original[:, 1], original[:, 2])
     p = fitted.path
     H = homographies(R_old, matrix_from_euler(p[:, 0], p[:, 1], p[:, 2]), intr)

@@ -13,7 +13,12 @@ measured by the scores' rule at the model's rate): a plan whose FPMI is a slow l
 or a turn is smoothed at 0.5 Hz and loses nothing a viewer would call intended; a plan whose FPMI
 is a running bob keeps the bob (lowering the cutoff would take it away) and only what lies above
 the bob's band goes. The low-passed plan then goes to the path programme
-(:func:`egovid.fpv.stabilize.path.fit_path`), which bends it into the zoom budget.
+(:func:`egovid.fpv.stabilize.path.fit_path`), which bends it into the zoom budget, with weights
+(:data:`VISIBLE_WEIGHTS`) that make the budget work: where the target cannot be shown (a fast pan
+at the end of a clip, a plan that strays further than the crop allows), the path's own curvature
+(second and third differences, 10 and 33 times the default weight) costs more than being away
+from the target (a twentieth of the default) or cropping (a fifth), so the path is the smoothest
+one the crop can cover there instead of the crop's edge hugging the recorded motion.
 """
 
 from __future__ import annotations
@@ -24,11 +29,14 @@ import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.fpv.perception.model import ViewingModel
+from egovid.fpv.stabilize.path import FittedPath, PathWeights, fit_path
 
 #: Cutoffs tried (Hz), lowest first.
 CUTOFFS_HZ = (0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
 #: Share of the plan's FPMI the low-passed plan must keep.
 FPMI_FLOOR = 0.9
+#: Path-programme weights below the plan (module docstring).
+VISIBLE_WEIGHTS = PathWeights(plan=0.05, d1=10.0, d2=300.0, d3=1000.0, zoom=0.2)
 
 
 @dataclass
@@ -76,3 +84,22 @@ def visible_target(
         if kept >= fpmi_floor:
             return VisibleTarget(cand, hz, float(kept))
     return VisibleTarget(plan.copy(), None, 1.0)
+
+
+def visible_path(
+    original: np.ndarray,
+    plan: np.ndarray,
+    intr: Intrinsics,
+    fps: float,
+    *,
+    max_zoom: float = 1.10,
+    fpmi_floor: float = FPMI_FLOOR,
+    model: ViewingModel | None = None,
+    anchor_threshold: float = 0.5,
+) -> tuple[FittedPath, VisibleTarget]:
+    """The rendered path and zoom below ``plan`` (both (K, 3) degrees per frame at ``fps``, with
+    the recorded ``original``): :func:`visible_target`, then the path programme with
+    :data:`VISIBLE_WEIGHTS` within ``max_zoom``."""
+    vt = visible_target(plan, fps, intr, fpmi_floor=fpmi_floor, model=model, anchor_threshold=anchor_threshold)
+    fitted = fit_path(original, vt.target, intr, fps, max_zoom=max_zoom, weights=VISIBLE_WEIGHTS)
+    return fitted, vt

@@ -56,6 +56,8 @@ _BANDS = {
 }
 #: Per-axis share of the shake amplitude (yaw, pitch, roll) for the synthetic kinds.
 _AXIS_SHARE = np.array([1.0, 1.0, 0.6])
+#: Angular speed (°/s, below 0.7 Hz) above which a gyro log is moving on purpose, not shaking.
+_STEADY_DEG_S = 10.0
 #: Grid on which shake is defined before interpolation to frame and row times (Hz).
 _SHAKE_GRID_HZ = 1000.0
 
@@ -212,14 +214,24 @@ def shake_motion(
         rate = 1.0 / float(np.median(np.diff(gt)))
         even = np.arange(0.0, gt[-1], 1.0 / rate)
         ga = np.stack([np.interp(even, gt, ga[:, i]) for i in range(3)], axis=1)
-        sh = _band(ga - ga.mean(0), rate, _BANDS[kind])
+        # Only the log's steady stretch is shake: a fast intentional turn (the HERO5 clip ends
+        # with a pan) would pass the band as one large transient.
+        slow = _band(ga - ga.mean(0), rate, (0.05, 0.7))
+        speed = np.linalg.norm(np.gradient(slow, 1.0 / rate, axis=0), axis=1)
+        ok = speed < _STEADY_DEG_S
+        runs = np.flatnonzero(np.diff(np.r_[0, ok.astype(int), 0]))
+        a, b = max(zip(runs[::2], runs[1::2], strict=True), key=lambda r: r[1] - r[0])
+        seg = ga[a:b] - ga[a:b].mean(0)
+        sh = _band(seg, rate, _BANDS[kind])
+        even = even[: b - a]
         # Longer clips than the log: the log played forwards and backwards (continuous angle).
         n_rep = int(np.ceil(grid[-1] / even[-1])) + 1
         tiled = np.concatenate([sh if r % 2 == 0 else sh[::-1] for r in range(n_rep)])
         tt = np.arange(len(tiled)) / rate
         start = np.random.default_rng(seed).uniform(0.0, max(even[-1] - 1.0, 0.0))
         sh = np.stack([np.interp(grid + start, tt, tiled[:, i]) for i in range(3)], axis=1)
-        scale = amplitude_deg / max(float(np.sqrt(np.mean(sh[:, :2] ** 2))), 1e-12)
+        used = (grid >= t.min()) & (grid <= t.max())  # scaled where the clip plays it
+        scale = amplitude_deg / max(float(np.sqrt(np.mean(sh[used, :2] ** 2))), 1e-12)
         sh = sh * scale
     else:
         rng = np.random.default_rng(1000 + seed)

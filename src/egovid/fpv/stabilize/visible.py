@@ -32,7 +32,7 @@ from egovid.fpv.perception.model import ViewingModel
 from egovid.fpv.stabilize.path import FittedPath, PathWeights, fit_path
 
 #: Cutoffs tried (Hz), lowest first.
-CUTOFFS_HZ = (0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
+CUTOFFS_HZ = (0.5, 1.0, 2.0, 4.0)
 #: Share of the plan's FPMI the low-passed plan must keep.
 FPMI_FLOOR = 0.9
 #: Path-programme weights below the plan (module docstring).
@@ -96,10 +96,25 @@ def visible_path(
     fpmi_floor: float = FPMI_FLOOR,
     model: ViewingModel | None = None,
     anchor_threshold: float = 0.5,
+    weights: PathWeights | None = None,
 ) -> tuple[FittedPath, VisibleTarget]:
     """The rendered path and zoom below ``plan`` (both (K, 3) degrees per frame at ``fps``, with
-    the recorded ``original``): :func:`visible_target`, then the path programme with
-    :data:`VISIBLE_WEIGHTS` within ``max_zoom``."""
-    vt = visible_target(plan, fps, intr, fpmi_floor=fpmi_floor, model=model, anchor_threshold=anchor_threshold)
-    fitted = fit_path(original, vt.target, intr, fps, max_zoom=max_zoom, weights=VISIBLE_WEIGHTS)
-    return fitted, vt
+    the recorded ``original``): the plan low-passed at the lowest cutoff of :data:`CUTOFFS_HZ`
+    whose path, bent into ``max_zoom`` by the path programme with :data:`VISIBLE_WEIGHTS`, still
+    keeps ``fpmi_floor`` of the plan's FPMI (the crop may not let the path follow the low-passed
+    plan: a pan at the clip's end, so the check is on the path, not the target); the plan itself
+    with those weights when no cutoff does."""
+    from egovid.fpv.stabilize.measure import motion_scores
+
+    w = weights or VISIBLE_WEIGHTS
+    kw = {"model": model, "anchor_threshold": anchor_threshold}
+    base = 1.0 - motion_scores(plan, fps, intr, **kw).pure_fpm_ve
+    for hz in CUTOFFS_HZ:
+        target = low_pass(plan, fps, hz)
+        fitted = fit_path(original, target, intr, fps, max_zoom=max_zoom, weights=w)
+        kept = (1.0 - motion_scores(fitted.path, fps, intr, **kw).pure_fpm_ve) / base if base > 1e-6 else 1.0
+        if kept >= fpmi_floor:
+            return fitted, VisibleTarget(target, hz, float(kept))
+    fitted = fit_path(original, plan, intr, fps, max_zoom=max_zoom, weights=w)
+    kept = (1.0 - motion_scores(fitted.path, fps, intr, **kw).pure_fpm_ve) / base if base > 1e-6 else 1.0
+    return fitted, VisibleTarget(np.asarray(plan, float).copy(), None, float(kept))

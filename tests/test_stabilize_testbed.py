@@ -47,6 +47,8 @@ def test_truth_is_intended_plus_shake_and_the_gyro_replay_keeps_its_amplitude():
     assert 0.2 < rms < 0.4  # scaled to 0.3 on the grid; sampled at the frames
     assert tr.gyro is not None and abs(len(tr.gyro) - 200 * 3.0) < 30
     assert case_truth(replace(c, shake="eis-residual")).gyro is None  # no gyro describes an EIS picture
+    # The renderer asks for one frame's rows at a time: the same truth whatever is asked.
+    assert np.allclose(tr.orientation(tr.frame_centre_times[40:41]), tr.angles[40:41])
 
 
 def test_rendered_pictures_move_as_the_truth_says(tmp_path):

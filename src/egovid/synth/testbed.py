@@ -200,17 +200,29 @@ def _gyro_angles(log: str, real_dir: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def shake_motion(
-    kind: str, t: np.ndarray, amplitude_deg: float, seed: int = 0, real_dir: str | os.PathLike | None = None
+    kind: str,
+    t: np.ndarray,
+    amplitude_deg: float,
+    seed: int = 0,
+    real_dir: str | os.PathLike | None = None,
+    seconds: float = 10.0,
 ) -> np.ndarray:
-    """(len(t), 3) shake in degrees at times ``t`` (seconds from 0): RMS ``amplitude_deg`` (on
-    the yaw scale; see :data:`_AXIS_SHARE` and, for gyro logs, the log's own axis ratios)."""
+    """(len(t), 3) shake in degrees at times ``t`` (seconds from 0) of a clip ``seconds`` long:
+    RMS ``amplitude_deg`` over the clip (on the yaw scale; see :data:`_AXIS_SHARE` and, for gyro
+    logs, the log's own axis ratios). The shake depends on the clip, not on the times asked."""
     if kind not in SHAKES:
         raise EgovidError(f"unknown test-bed shake {kind!r}", f"choose one of {', '.join(SHAKES)}")
     t = np.asarray(t, dtype=float)
-    span = float(t.max()) + 1.0
-    grid = np.arange(0.0, span + 2.0, 1.0 / _SHAKE_GRID_HZ)
+    sh, grid = _shake_grid(kind, float(amplitude_deg), int(seed), str(real_dir or default_real_dir()), float(seconds))
+    return np.stack([np.interp(t, grid, sh[:, i]) for i in range(3)], axis=1)
+
+
+@lru_cache(maxsize=32)
+def _shake_grid(kind: str, amplitude_deg: float, seed: int, real_dir: str, seconds: float):
+    """The shake of a clip on a 1 kHz grid from 0 to ``seconds`` + 2 s, and that grid."""
+    grid = np.arange(0.0, seconds + 2.0, 1.0 / _SHAKE_GRID_HZ)
     if kind in GYRO_LOGS:
-        gt, ga = _gyro_angles(kind, str(real_dir or default_real_dir()))
+        gt, ga = _gyro_angles(kind, real_dir)
         rate = 1.0 / float(np.median(np.diff(gt)))
         even = np.arange(0.0, gt[-1], 1.0 / rate)
         ga = np.stack([np.interp(even, gt, ga[:, i]) for i in range(3)], axis=1)
@@ -230,7 +242,7 @@ def shake_motion(
         tt = np.arange(len(tiled)) / rate
         start = np.random.default_rng(seed).uniform(0.0, max(even[-1] - 1.0, 0.0))
         sh = np.stack([np.interp(grid + start, tt, tiled[:, i]) for i in range(3)], axis=1)
-        used = (grid >= t.min()) & (grid <= t.max())  # scaled where the clip plays it
+        used = grid <= seconds  # scaled where the clip plays it
         scale = amplitude_deg / max(float(np.sqrt(np.mean(sh[used, :2] ** 2))), 1e-12)
         sh = sh * scale
     else:
@@ -238,7 +250,7 @@ def shake_motion(
         noise = rng.normal(0.0, 1.0, (len(grid), 3))
         sh = _band(noise, _SHAKE_GRID_HZ, _BANDS[kind])
         sh = sh / sh.std(axis=0) * amplitude_deg * _AXIS_SHARE
-    return np.stack([np.interp(t, grid, sh[:, i]) for i in range(3)], axis=1)
+    return sh, grid
 
 
 def default_real_dir() -> Path:
@@ -275,7 +287,8 @@ class CaseTruth:
     def orientation(self, t: np.ndarray) -> np.ndarray:
         """(len(t), 3) true yaw, pitch, roll in degrees at times ``t`` (seconds)."""
         c = self.case
-        return intended_motion(c.motion, t, c.seed) + shake_motion(c.shake, t, c.shake_deg, c.seed, self.real_dir)
+        shake = shake_motion(c.shake, t, c.shake_deg, c.seed, self.real_dir, c.seconds)
+        return intended_motion(c.motion, t, c.seed) + shake
 
     def trajectory(self) -> Trajectory:
         """The true per-frame motion as a trajectory (frame 0 relative orientation kept as is)."""
@@ -288,7 +301,7 @@ def case_truth(case: Case, real_dir: str | os.PathLike | None = None) -> CaseTru
     times = np.arange(case.frames) / case.fps
     tc = times + 0.5 * case.readout_s
     intended = intended_motion(case.motion, tc, case.seed)
-    shake = shake_motion(case.shake, tc, case.shake_deg, case.seed, rd)
+    shake = shake_motion(case.shake, tc, case.shake_deg, case.seed, rd, case.seconds)
     truth = CaseTruth(case, times, intended, shake, None, rd)
     if case.has_gyro:
         tg = np.arange(0.0, times[-1] + case.readout_s + 0.1, 1.0 / GYRO_RATE_HZ)

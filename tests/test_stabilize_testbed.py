@@ -162,3 +162,30 @@ def test_visible_layer_smooths_a_pan_and_keeps_a_running_bob(kind):
     else:  # the bob is the FPMI: the cutoff stays above it
         assert vt.cutoff_hz is None or vt.cutoff_hz >= 2.0
         assert vt.fpmi_kept >= 0.9
+
+
+def test_horizon_lock_levels_against_the_accelerometers_gravity():
+    from egovid.fpv.stabilize.horizon import down_from_accelerometer, down_from_path, lock_horizon
+
+    rng = np.random.default_rng(4)
+    n = 400
+    t = np.arange(n) / 100.0
+    ang = np.stack([20 * np.sin(t), 5 * np.sin(1.7 * t), 3 + 2 * np.sin(2.3 * t)], 1)
+    tilt = _rot(np.array([0.0, 0.0, 4.0]))[0]  # frame 0's world is rolled 4° against gravity
+    R = tilt.T[None] @ _rot(ang)  # orientations in that world
+    down_w = tilt.T @ np.array([0.0, 1.0, 0.0])
+    accel = -9.81 * np.einsum("nji,j->ni", R, down_w) + rng.normal(0, 0.8, (n, 3))  # f = a - g, noisy
+    d = down_from_accelerometer(R, accel)
+    assert np.degrees(np.arccos(np.clip(d @ down_w, -1, 1))) < 1.0  # of a 4° tilt
+    path = euler_from_matrix_(R)
+    levelled = lock_horizon(path, d)
+    L = _rot(levelled)
+    assert np.allclose(L[:, :, 2], R[:, :, 2], atol=1e-9)  # viewing direction kept
+    assert np.max(np.abs(np.einsum("nj,j->n", L[:, :, 0], down_w))) < 0.021  # x axis level (< 1.2°; 0.07 unlevelled)
+    assert np.degrees(np.arccos(down_from_path(ang) @ np.array([0.0, 1.0, 0.0]))) < 5.0
+
+
+def euler_from_matrix_(R: np.ndarray) -> np.ndarray:
+    from egovid.core.rotations import euler_from_matrix
+
+    return euler_from_matrix(R)

@@ -187,7 +187,20 @@ def main() -> None:
     ap.add_argument("--case", action="append", help="only these cases (names from egovid.synth.testbed)")
     ap.add_argument("--seconds", type=float, default=None, help="shorten every case to this many seconds")
     ap.add_argument("--gyro", action="store_true", help="egovid takes the case's gyro as its motion where it has one")
+    ap.add_argument("--table", action="store_true", help="print the table of the latest stored result of every case")
+    ap.add_argument("--since", default="", help="with --table: only results stored at or after this time (ISO)")
     args = ap.parse_args()
+    if args.table:
+        from _common import CACHE
+
+        latest: dict[str, dict] = {}
+        for line in (CACHE / "results.jsonl").read_text().splitlines():
+            r = json.loads(line)
+            if r["benchmark"].startswith("stabilize_testbed/") and "egovid-visible" in r and r["time"] >= args.since:
+                latest[r["case"]] = r
+        order = [c.name for c in default_cases()]
+        print(table([latest[n] for n in order if n in latest]))
+        return
     folder = cache_dir("stabilize_testbed")
     rows = []
     for case in default_cases():

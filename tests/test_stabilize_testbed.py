@@ -7,8 +7,12 @@ truth says), exact homographies and a global-shutter render (the mesh remap), ha
 from __future__ import annotations
 
 import itertools
+import json
 import math
+import subprocess
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -189,3 +193,43 @@ def euler_from_matrix_(R: np.ndarray) -> np.ndarray:
     from egovid.core.rotations import euler_from_matrix
 
     return euler_from_matrix(R)
+
+
+SHAKE_TOOL = Path(__file__).resolve().parents[1].parent / "shared" / "tools" / "shake.py"
+
+
+def _shake(original: Path, output: Path) -> float:
+    """jitter_x + jitter_y of the acceptance tool ``../shared/tools/shake.py``."""
+    if not SHAKE_TOOL.exists():
+        pytest.skip(f"{SHAKE_TOOL} is not here")
+    r = subprocess.run([sys.executable, str(SHAKE_TOOL), str(original), str(output)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-300:]
+    d = json.loads(r.stdout.strip().splitlines()[-1])
+    return d["jitter_x"] + d["jitter_y"], d["zoom"]
+
+
+def test_visible_layer_beats_vidstab_on_a_shaky_drive_measured_on_the_decoded_output(tmp_path):
+    """Known truth as the gyro path (no vision): egovid's plan + visible layer, rendered and decoded,
+    against vid.stab's two passes on the same input, by shake.py itself."""
+    from egovid.fpv.stabilize.pipeline import plan_motion
+    from egovid.fpv.stabilize.render import render_stabilized
+    from egovid.fpv.stabilize.vidstab import run_vidstab
+    from egovid.fpv.stabilize.visible import visible_path
+
+    c = Case("d", "drive", "vibration", fps=25.0, width=320, height=180, seconds=3.0, shake_deg=0.15, seed=6)
+    src = tmp_path / "d.mp4"
+    tr = render_case(c, src)
+    intr = c.intrinsics()
+    plan, _ = plan_motion(tr.angles, c.fps, intr)
+    fitted, vt = visible_path(tr.angles, plan, intr, c.fps)
+    assert vt.cutoff_hz is not None and np.max(1 / fitted.keep) <= 1.10 + 1e-6
+    H = homographies(_rot(tr.angles), _rot(fitted.path), intr)
+    out = tmp_path / "d.egovid.mp4"
+    render_stabilized(src, out, H, keep=fitted.keep)
+    vs = tmp_path / "d.vidstab.mp4"
+    run_vidstab(src, vs, tmp_path, defaults=True)
+    (j_in, _), (j_eg, z_eg), (j_vs, _) = _shake(src, src), _shake(src, out), _shake(src, vs)
+    assert z_eg <= 1.10
+    assert j_eg < 0.6 * j_in
+    assert j_eg <= 0.9 * j_vs, (j_in, j_eg, j_vs)
+    print("shake.py jitter in / egovid / vid.stab", j_in, j_eg, j_vs)

@@ -23,7 +23,7 @@ from egovid.core.rotations import matrix_from_euler
 from egovid.core.video import iter_frames, probe
 from egovid.fpv.stabilize.gyroflow_peer import envelope_zoom, level_horizon, smooth_default
 from egovid.fpv.stabilize.render import homographies
-from egovid.fpv.stabilize.visible import visible_target
+from egovid.fpv.stabilize.visible import visible_path
 from egovid.fpv.stabilize.warp import FrameView, MeshWarp
 from egovid.synth.testbed import Case, case_truth, default_cases, render_case
 
@@ -160,7 +160,8 @@ def test_visible_layer_smooths_a_pan_and_keeps_a_running_bob(kind):
         a[:, 0] = 40.0 * np.clip((t - 1.0) / 2.0, 0, 1) ** 2 * (3 - 2 * np.clip((t - 1.0) / 2.0, 0, 1))
     else:
         a = np.stack([5 * np.sin(2 * np.pi * 1.3 * t), 2 * np.sin(2 * np.pi * 2.6 * t), 0 * t], 1)
-    vt = visible_target(a, fps, intr)
+    fitted, vt = visible_path(a, a, intr, fps)
+    assert np.max(1 / fitted.keep) <= 1.10 + 1e-6
     if kind == "pan":
         assert vt.cutoff_hz == 0.5 and vt.fpmi_kept >= 0.9
     else:  # the bob is the FPMI: the cutoff stays above it

@@ -8,8 +8,8 @@ everything above about 1.5 Hz fully, a walking bob as much as hand tremor, and t
 of a pan by their acceleration. The two pull against each other only where the anchors are fast.
 
 So the path the frame renders is the plan low-passed (zero-phase Butterworth, order 2) at the
-lowest cutoff that still keeps ``fpmi_floor`` of the plan's own FPMI (``1 - VE`` of its pure FPM,
-measured by the scores' rule at the model's rate): a plan whose FPMI is a slow look around, a pan
+lowest cutoff whose fitted path still keeps ``fpmi_floor`` of the plan's own FPMI (``1 - VE`` of
+its pure FPM, measured by the scores' rule at the model's rate): a plan whose FPMI is a slow look around, a pan
 or a turn is smoothed at 0.5 Hz and loses nothing a viewer would call intended; a plan whose FPMI
 is a running bob keeps the bob (lowering the cutoff would take it away) and only what lies above
 the bob's band goes. The low-passed plan then goes to the path programme
@@ -59,31 +59,6 @@ def low_pass(angles: np.ndarray, fps: float, cutoff_hz: float) -> np.ndarray:
     sos = butter(2, cutoff_hz, fs=fps, output="sos")
     pad = min(len(a) - 1, int(3 * fps / cutoff_hz))
     return sosfiltfilt(sos, a, axis=0, padtype="odd", padlen=pad)
-
-
-def visible_target(
-    plan: np.ndarray,
-    fps: float,
-    intr: Intrinsics,
-    *,
-    fpmi_floor: float = FPMI_FLOOR,
-    model: ViewingModel | None = None,
-    anchor_threshold: float = 0.5,
-    times: np.ndarray | None = None,
-) -> VisibleTarget:
-    """The plan low-passed at the lowest cutoff of :data:`CUTOFFS_HZ` that keeps ``fpmi_floor``
-    of its FPMI (module docstring). ``plan`` (K, 3) degrees per frame at ``fps``."""
-    from egovid.fpv.stabilize.measure import motion_scores
-
-    plan = np.asarray(plan, dtype=float)
-    kw = {"model": model, "anchor_threshold": anchor_threshold, "times": times}
-    base = 1.0 - motion_scores(plan, fps, intr, **kw).pure_fpm_ve
-    for hz in CUTOFFS_HZ:
-        cand = low_pass(plan, fps, hz)
-        kept = (1.0 - motion_scores(cand, fps, intr, **kw).pure_fpm_ve) / base if base > 1e-6 else 1.0
-        if kept >= fpmi_floor:
-            return VisibleTarget(cand, hz, float(kept))
-    return VisibleTarget(plan.copy(), None, 1.0)
 
 
 def visible_path(

@@ -97,6 +97,24 @@ def test_mesh_remap_equals_the_exact_homography():
     assert np.max(np.hypot(mx - ex, my - ey)) < 0.05
 
 
+def test_global_shutter_warp_equals_the_mesh_and_the_renderers_homography():
+    from egovid.fpv.stabilize.render import _warp_i420, zoom_about_centre
+
+    intr = Intrinsics.from_hfov(320, 180, 90.0)
+    rng = np.random.default_rng(1)
+    img = cv2.GaussianBlur(rng.integers(0, 255, (270, 320), dtype=np.uint8), (0, 0), 2.0)
+    R_old, R_new = _rot(np.array([1.0, -0.5, 0.7])), _rot(np.array([-0.8, 0.6, -0.4]))
+    warp = MeshWarp(intr)
+    view = FrameView(R_new[0], R_old, 1.07)
+    fast = warp.warp_i420(img, view)
+    H = zoom_about_centre(1 / 1.07, 320, 180) @ homographies(R_old, R_new, intr)[0]
+    ref = _warp_i420(img, H, 320, 180, (0, 128), cv2.BORDER_CONSTANT)
+    mesh = warp.warp_i420(img, FrameView(R_new[0], np.repeat(R_old, 3, axis=0), 1.07))  # 3 equal rows
+    inner = (slice(8, 172), slice(8, 312))
+    assert np.abs(fast[:180].astype(int) - ref[:180])[inner].max() <= 1
+    assert np.abs(fast[:180].astype(int) - mesh[:180])[inner].mean() < 0.5
+
+
 def test_mesh_remap_undoes_a_rolling_shutter(tmp_path):
     c = Case("rs", "pan", "hand", width=320, height=180, seconds=2.0, readout_s=0.05, shake_deg=0.0)
     rs = render_case(c, tmp_path / "rs.mp4")

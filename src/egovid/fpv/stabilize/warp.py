@@ -118,10 +118,37 @@ class MeshWarp:
         my = cv2.resize(sy, (W, H), interpolation=cv2.INTER_LINEAR)[m : m + h, m : m + w]
         return mx, my
 
+    def inverse_homography(self, view: FrameView) -> np.ndarray:
+        """(3, 3) output -> source pixel map of a global-shutter view, ``K Rᵀ R̃ K⁻¹ Z⁻¹``."""
+        K, Ki = self.intr.K, self.intr.K_inv
+        cx, cy = (self.w - 1) / 2.0, (self.h - 1) / 2.0
+        z = view.zoom
+        Zi = np.array([[1 / z, 0, cx * (1 - 1 / z)], [0, 1 / z, cy * (1 - 1 / z)], [0, 0, 1.0]])
+        return K @ view.R_rows[0].T @ view.R_new @ Ki @ Zi
+
     def warp_i420(self, img: np.ndarray, view: FrameView, border: tuple[int, int] = (0, 128)) -> np.ndarray:
-        """The output I420 picture ((h*3/2, w) uint8) of source picture ``img`` for ``view``."""
+        """The output I420 picture ((h*3/2, w) uint8) of source picture ``img`` for ``view``. A
+        global-shutter view is one homography: ``cv2.warpPerspective`` (half the time of a
+        remap through full-size maps at 1080p, the same map); rows read at their own times go
+        through the mesh."""
         w, h = self.w, self.h
         out = np.empty_like(img)
+        if len(view.R_rows) == 1:
+            Hi = self.inverse_homography(view)
+            flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+            out[:h] = cv2.warpPerspective(
+                img[:h], Hi, (w, h), flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=border[0]
+            )
+            C = np.array([[0.5, 0.0, -0.25], [0.0, 0.5, -0.25], [0.0, 0.0, 1.0]])  # luma -> chroma
+            Hc = C @ Hi @ np.linalg.inv(C)
+            cw, ch = w // 2, h // 2
+            planes = img[h:].reshape(2, ch, cw)
+            oc = out[h:].reshape(2, ch, cw)
+            for p in range(2):
+                oc[p] = cv2.warpPerspective(
+                    planes[p], Hc, (cw, ch), flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=border[1]
+                )
+            return out
         mx, my = self._maps(view, self._luma)
         out[:h] = cv2.remap(img[:h], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=border[0])
         cx, cy = self._maps(view, self._chroma)

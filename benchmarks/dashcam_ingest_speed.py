@@ -36,7 +36,7 @@ from pathlib import Path
 
 from egovid.core.video import count_frames
 from egovid.dashcam.archive.store import Archive, open_archive
-from egovid.dashcam.ingest import IngestOptions, ingest
+from egovid.dashcam.ingest import IngestOptions, ingest_videos
 from egovid.dashcam.ingest.options import PRESETS
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
@@ -109,7 +109,7 @@ def joint_runs(folder: Path, preset: str, video: Path, opts: IngestOptions) -> l
         shutil.copytree(folder / f"archive-{preset}", arch)
         s0 = stolen_seconds()
         with open_archive(arch) as ar:
-            rep = ingest(ar, video, None, opts)
+            (rep,) = ingest_videos(ar, [video], options=opts).reports
         s1 = stolen_seconds()
         runs.append((rep, None if s0 is None or s1 is None else round(s1 - s0, 2)))
     return runs
@@ -139,7 +139,7 @@ def main() -> None:
             arch = folder / f"archive-{preset}"
             shutil.rmtree(arch, ignore_errors=True)
             ar = Archive.create(arch)
-            r0 = ingest(ar, root_video, None, opts)
+            (r0,) = ingest_videos(ar, [root_video], options=opts).reports
             ar.close()
             runs = joint_runs(folder, preset, joint_video, opts)
             r1 = sorted(runs, key=lambda r: r[0].fps)[len(runs) // 2][0]  # the median run

@@ -3,7 +3,8 @@ so a 60 s drive should need no more memory than a 10 s one (issue 14: within 10 
 
 For each length (EGOVID_BENCH_LENGTHS, default 10,60 seconds) a pair of drives at 640x360 along the
 main road (the later one slower, another lane and light), each ingest in a fresh process (the
-default preset): the root drive, then the joint one; peak resident memory from
+default preset, through ingest_videos, the route of ``egovid dashcam ingest``): the root drive,
+then the joint one; peak resident memory from
 getrusage(RUSAGE_SELF).ru_maxrss of that process. Also the most frames the joint ingest held at
 once (frames of the new drive waiting for their match, and of the older drive kept for baselines).
 """
@@ -25,10 +26,10 @@ LENGTHS = [float(v) for v in os.environ.get("EGOVID_BENCH_LENGTHS", "10,60").spl
 
 CHILD = r"""
 import json, resource, sys
-from egovid.dashcam.ingest import ingest
+from egovid.dashcam.ingest import ingest_videos
 from egovid.dashcam.archive.store import open_archive
 ar = open_archive(sys.argv[1])
-rep = ingest(ar, sys.argv[2], None, name=sys.argv[3])
+(rep,) = ingest_videos(ar, [sys.argv[2]], name=sys.argv[3]).reports
 print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "frames": rep.frames,
                   "fps": rep.fps, "modes": [p.mode for p in rep.pieces]}))
 """

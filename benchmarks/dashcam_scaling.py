@@ -1,6 +1,7 @@
 """Dashcam ingest scaling out: one batch of drives ingested by 1 and by 2 local worker processes
 (``egovid dashcam ingest ARCHIVE FOLDER --workers N``), wall-clock seconds and frames per second
-of the whole batch, in the same run.
+of the whole batch (the files' examination included, as the command does it: ingest_videos), in
+the same run.
 
 The batch: four drives at 640x360 (EGOVID_BENCH_SIZE), two along the main road and two along the
 side street, 400 m apart, so the two roads ingest side by side and each later drive waits for the
@@ -15,8 +16,7 @@ import time
 
 from egovid.core.engine import EngineConfig
 from egovid.dashcam.archive.store import Archive
-from egovid.dashcam.ingest import DriveInput, IngestOptions
-from egovid.dashcam.ingest.run import ingest_many, plan_batch
+from egovid.dashcam.ingest import IngestOptions, ingest_videos
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
 from _common import cache_dir, report
@@ -38,7 +38,7 @@ def batch_folder():
     for name, spec in specs.items():
         if not (videos / f"{name}.mp4").exists():
             render_drive(spec, videos / f"{name}.mp4", width=W, height=H)
-    return folder, sorted(videos.glob("*.mp4"))
+    return folder, videos
 
 
 def main() -> None:
@@ -48,11 +48,9 @@ def main() -> None:
         root = folder / f"archive-{workers}"
         shutil.rmtree(root, ignore_errors=True)
         ar = Archive.create(root)
-        batch = plan_batch(ar, [DriveInput(v) for v in videos], IngestOptions())
         t0 = time.perf_counter()
-        results = list(ingest_many(ar, batch, EngineConfig(workers=workers)))
+        results = ingest_videos(ar, [videos], engine=EngineConfig(workers=workers)).check().added
         seconds = time.perf_counter() - t0
-        assert all(r.report is not None for r in results), [r.error for r in results]
         frames = sum(r.report.frames for r in results)
         rows[str(workers)] = {
             "seconds": seconds,

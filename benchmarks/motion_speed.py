@@ -11,8 +11,8 @@ import os
 
 import numpy as np
 
-from egovid.core.motion.estimate import estimate_motion
-from egovid.core.trajectory import Trajectory
+from egovid.core.motion.source import camera_motion
+from egovid.core.trajectory import Trajectory, read_motion_csv
 from egovid.core.video import iter_frames
 
 from _common import cache_dir, report, running_clip, timed
@@ -23,9 +23,8 @@ def main() -> None:
     n = sum(1 for _ in iter_frames(clip, gray=True))  # warm the file cache
     _, t_dec = timed(lambda: sum(1 for _ in iter_frames(clip, gray=True)))
     _, t_bgr = timed(lambda: sum(1 for _ in iter_frames(clip)))
-    est, t_est = timed(estimate_motion, clip)
-    from egovid.core.trajectory import read_motion_csv
-
+    cm, t_est = timed(camera_motion, clip)  # what `fpv motion` runs (the clip has no gyro: vision)
+    est = cm.vision
     gt = read_motion_csv(clip.with_name(clip.stem + ".gt.csv")).relative_to_first()
     err = np.sqrt(np.mean((est.trajectory.euler() - gt.euler()) ** 2, axis=0))
     err_chain = np.sqrt(np.mean((Trajectory(gt.times, est.chained).euler() - gt.euler()) ** 2, axis=0))

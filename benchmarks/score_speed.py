@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from egovid.fpv.perception.score import score_angles, world_intervals
-from egovid.fpv.perception.ve2d import ve2d_video
+from egovid.fpv.score import score_video
 from egovid.synth import motions
 
 from _common import cache_dir, report, running_clip
@@ -38,7 +38,7 @@ def main() -> None:
     t_sve = best_of(lambda: score_angles(a, 30, HFOV, VFOV, method="sve"))
     t_iv = best_of(lambda: world_intervals(a, 30, HFOV, VFOV))
     clip = running_clip(cache_dir("motion") / "running720.mp4")
-    r = ve2d_video(clip)
+    r = score_video(clip, method="ve2d").results["ve2d"]  # what `fpv score --method ve2d` runs
     report(
         "score_speed",
         {

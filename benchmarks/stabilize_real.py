@@ -31,11 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.core.motion.source import camera_motion
 from egovid.core.video import probe
 from egovid.fpv.stabilize.measure import measure_video, pixel_measures
-from egovid.fpv.stabilize.pipeline import stabilize
 from egovid.fpv.stabilize.render import render_stabilized
+from egovid.fpv.stabilize.run import stabilize_video
 from egovid.fpv.stabilize.vidstab import run_vidstab
 
 from _common import ROOT, cache_dir, report
@@ -109,10 +108,10 @@ def bench_clip(clip: Path, folder: Path, hfov: float | None) -> dict:
     n = info.frame_count
     eg_out = folder / f"{clip.stem}.egovid.mp4"
     t = time.perf_counter()
-    # What `fpv stabilize` does: motion and intrinsics from the default source, then the stabiliser.
-    cm = camera_motion(clip, "auto", hfov=hfov)
+    # What `fpv stabilize` runs: motion and intrinsics from the default source, then the stabiliser.
+    res = stabilize_video(clip, eg_out, source="auto", hfov=hfov)
+    cm = res.camera_motion
     intr = cm.camera.intrinsics
-    res = stabilize(clip, eg_out, intrinsics=intr, motion=cm.trajectory)
     eg_wall = time.perf_counter() - t
     eg_seconds = cm.seconds["total"] + res.seconds["total"] - res.seconds["measure"]
     vs_out = folder / f"{clip.stem}.vidstab.mp4"

@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import dashcam_bdrate as bench  # noqa: E402
 from egovid.dashcam.codec import segment as codec  # noqa: E402
 from egovid.dashcam.codec import vpx  # noqa: E402
+from egovid.dashcam.codec.settings import EncoderSettings  # noqa: E402
 from egovid.synth.drive import render_drive, simulate  # noqa: E402
 
 W, H = 640, 360
@@ -52,7 +53,7 @@ def _job(args: tuple[str, int, int, bool]) -> tuple[tuple[int, float], tuple[int
     oracle = np.array([int(np.argmin(np.abs(ta.s - s))) for s in tb.s])
     A, B = bench.frames_of(folder / "ref.mp4"), bench.frames_of(folder / f"{name}.mp4")
     pw, ph = vpx.padded_size(W, H)
-    st = dataclasses.replace(vpx.EncoderSettings(q=q, speed=5, gop=bench.GOP, refresh=bench.REFRESH), gop_dq=dq)
+    st = dataclasses.replace(EncoderSettings(q=q, speed=5, gop=bench.GOP, refresh=bench.REFRESH), gop_dq=dq)
     recs: list = []
     codec.encode_segment(iter(A), W, H, st, keep_recon=recs)
     alone = codec.encode_segment(iter(B), W, H, st)

@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from dashcam_bdrate import frames_of, specs  # noqa: E402
 from egovid.dashcam.codec import segment as codec  # noqa: E402
-from egovid.dashcam.codec import vpx  # noqa: E402
+from egovid.dashcam.codec.settings import EncoderSettings  # noqa: E402
 from egovid.synth.drive import render_drive  # noqa: E402
 
 from _common import cache_dir  # noqa: E402
@@ -74,7 +74,7 @@ def main() -> None:
     hevc = {qp: x265_psnr(frames, w, h, qp) for qp in QPS}
     vp9 = {}
     for q in range(24, 64, 4):
-        st = vpx.EncoderSettings(q=q, speed=5, gop=8, refresh=24)
+        st = EncoderSettings(q=q, speed=5, gop=8, refresh=24)
         recon: list = []
         e = codec.encode_segment(iter(frames), w, h, st, keep_recon=recon)
         vp9[q] = (float(np.mean([psnr_y(a[:h], b[:h]) for a, b in zip(frames, recon, strict=True)])), len(e.blob))

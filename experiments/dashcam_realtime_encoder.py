@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import dashcam_bdrate as bench  # noqa: E402
 from egovid.dashcam.codec import segment as codec  # noqa: E402
 from egovid.dashcam.codec import vpx  # noqa: E402
+from egovid.dashcam.codec.settings import EncoderSettings  # noqa: E402
 from egovid.synth.drive import render_drive, simulate  # noqa: E402
 
 from _common import cache_dir  # noqa: E402
@@ -86,7 +87,7 @@ def main() -> None:
             ROLE_SPEED.update(cfg.pop("role_speed", {}))
             pts, seconds = [], 0.0
             for q in qs:
-                st = vpx.EncoderSettings(q=q, fps=30, refresh=bench.REFRESH, **cfg)
+                st = EncoderSettings(q=q, fps=30, refresh=bench.REFRESH, **cfg)
                 recs: list = []
                 codec.encode_segment(iter(A), w, h, st, keep_recon=recs)
                 alone = codec.encode_segment(iter(B), w, h, st)

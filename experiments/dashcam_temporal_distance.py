@@ -27,6 +27,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import dashcam_bdrate as bench  # noqa: E402
 from egovid.dashcam.codec import segment as codec  # noqa: E402
 from egovid.dashcam.codec import vpx  # noqa: E402
+from egovid.dashcam.codec.settings import EncoderSettings  # noqa: E402
 from egovid.synth.drive import render_drive, simulate  # noqa: E402
 
 W, H = 640, 360
@@ -46,7 +47,7 @@ def _job(args: tuple[str, int, int]) -> tuple[tuple[int, float], tuple[int, floa
     oracle = np.array([int(np.argmin(np.abs(ta.s - s))) for s in tb.s])[::stride]
     A, B = bench.frames_of(folder / "ref.mp4"), bench.frames_of(folder / f"{name}.mp4")[::stride]
     pw, ph = vpx.padded_size(W, H)
-    st = vpx.EncoderSettings(q=q, gop=1)
+    st = EncoderSettings(q=q, gop=1)
     recs: list = []
     codec.encode_segment(iter(A), W, H, st, keep_recon=recs)
     alone = codec.encode_segment(iter(B), W, H, st)

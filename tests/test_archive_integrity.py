@@ -70,7 +70,7 @@ def built(tmp_path_factory) -> Path:
     for name, seed, cruise in (("a", 1, 11.0), ("b", 2, 9.0)):
         spec = DriveSpec(legs=[("main", 20.0, 90.0)], cruise=cruise, seed=seed, vehicles=1)
         video, gps, _ = render_drive(spec, d / f"{name}.mp4", width=160, height=96, fps=10.0)
-        assert run(["dashcam", "ingest", str(root), str(video), "--gps", str(gps)]) == 0
+        assert run(["dashcam", "ingest", str(root), str(video), "--gps", str(gps), "--codec", "vp9"]) == 0
     gc.collect()
     modes = dict(sql(root, "SELECT d.name, s.mode FROM segments s JOIN drives d ON d.id = s.drive_id"))
     assert modes == {"a": "intra", "b": "joint"}, modes  # the chain b -> a the cases below break
@@ -349,7 +349,7 @@ def test_a_backup_that_cannot_be_written_is_said_and_never_left_behind(tmp_path,
     import errno
 
     from egovid.core.errors import EgovidError
-    from egovid.dashcam import check as integrity
+    from egovid.dashcam.archive import catalogue_file as integrity
     from egovid.dashcam.archive.catalogue import SqliteCatalogue
 
     cat = SqliteCatalogue(tmp_path / "catalogue.sqlite", create=True)

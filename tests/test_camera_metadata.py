@@ -69,7 +69,7 @@ def test_intrinsics_resolution_order(karma_clip, handheld_clip, tmp_path):
     import shutil
     import subprocess
 
-    from egovid.core.camera.intrinsics import resolve_camera
+    from egovid.core.camera.resolve import resolve_camera
 
     # GoPro lens mode: Medium, 94.4° published across 854 px, equidistant fisheye.
     cam = resolve_camera(karma_clip)

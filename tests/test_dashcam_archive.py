@@ -15,7 +15,7 @@ from egovid.core.video import iter_frames
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.extract import extract_video
-from egovid.dashcam.ingest import IngestOptions, ingest
+from egovid.dashcam.ingest import IngestOptions, ingest_videos
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
 from conftest import _wait_for, assert_one_error, run_cli
@@ -50,7 +50,17 @@ def archive(drives, tmp_path_factory):
     for name in ("a", "b", "c"):
         video, gps, _ = drives[name]
         r = run_cli(
-            "dashcam", "ingest", root, video, "--gps", gps, "--measure-savings", "--json", root.parent / f"{name}.json"
+            "dashcam",
+            "ingest",
+            root,
+            video,
+            "--gps",
+            gps,
+            "--codec",
+            "vp9",
+            "--measure-savings",
+            "--json",
+            root.parent / f"{name}.json",
         )
         assert r.returncode == 0, r.stderr
         reports[name] = json.loads((root.parent / f"{name}.json").read_text())
@@ -257,7 +267,8 @@ def test_kill_during_ingest_leaves_archive_consistent(archive, drives, tmp_path)
     extract_video(ar, ar.drive_or_fail("a"), tmp_path / "a.mkv")
     assert sum(1 for _ in iter_frames(tmp_path / "a.mkv")) == ar.catalogue.drive("a").frames
     # And the same drive can be ingested afterwards.
-    rep = ingest(ar, video, gps, IngestOptions(measure_savings=False), name="after-crash")
+    opts = IngestOptions(measure_savings=False, codec="vp9")
+    (rep,) = ingest_videos(ar, [video], gps=gps, options=opts, name="after-crash").reports
     assert rep.pieces[0].mode == "joint"
 
 
@@ -270,7 +281,7 @@ def test_postgresql_catalogue(archive, drives, pg_url, tmp_path):
     assert r.returncode == 0 and "PostgreSQL" in r.stdout, r.stderr
     for name in ("a", "b"):
         video, gps, _ = drives[name]
-        r = run_cli("dashcam", "ingest", root, video, "--gps", gps)
+        r = run_cli("dashcam", "ingest", root, video, "--gps", gps, "--codec", "vp9")
         assert r.returncode == 0, r.stderr
     assert _state(root) == [2, 1, 2, 2]
     # Drive b was coded against a alone in both archives: the catalogue changes no bit.

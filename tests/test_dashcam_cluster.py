@@ -87,11 +87,13 @@ def test_four_drives_on_two_roads_through_a_dask_cluster(roads, dask_scheduler, 
     assert not (root / "blobs").exists()
     # The batch's order: the roads are far apart, so each later drive waits for its own road only.
     ar = open_archive(root)
-    batch = plan_batch(ar, [DriveInput(v) for v in sorted(roads.glob("*.mp4"))], IngestOptions())
+    batch = plan_batch(ar, [DriveInput(v) for v in sorted(roads.glob("*.mp4"))], IngestOptions(codec="vp9"))
     assert batch.after == {"1-main": [], "2-side": [], "3-main": ["1-main"], "4-side": ["2-side"]}
     _workers_see(dask_scheduler, s3_server)
     out = tmp_path / "ingest.json"
-    r = run_cli("dashcam", "ingest", root, roads, "--scheduler", dask_scheduler, "--json", out, env=s3_server)
+    r = run_cli(
+        "dashcam", "ingest", root, roads, "--codec", "vp9", "--scheduler", dask_scheduler, "--json", out, env=s3_server
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     reps = {d["name"]: d for d in json.loads(out.read_text())["drives"]}
     modes = {n: [(p["mode"], p["ref_drive"]) for p in rep["pieces"]] for n, rep in reps.items()}
@@ -123,7 +125,7 @@ def test_a_worker_killed_mid_ingest_is_retried_and_the_archive_stays_consistent(
     )
     _workers_see(dask_scheduler, s3_server)
     ar = open_archive(root)
-    batch = plan_batch(ar, [DriveInput(v) for v in sorted(roads.glob("*-main.mp4"))], IngestOptions())
+    batch = plan_batch(ar, [DriveInput(v) for v in sorted(roads.glob("*-main.mp4"))], IngestOptions(codec="vp9"))
     results: list = []
     run = threading.Thread(
         target=lambda: results.extend(ingest_many(ar, batch, EngineConfig(dask_scheduler))), daemon=True

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from egovid.core.errors import EgovidError
-from egovid.dashcam.route.clock import name_time, parse_creation_time, resolve_clock
+from egovid.core.times import creation_time_utc
+from egovid.dashcam.route.clock import name_time, resolve_clock
 from egovid.dashcam.route.embedded import fixes_from_exiftool, parse_gps_time, read_embedded_gps
 from egovid.dashcam.route.tracks import GpsTrack
 
@@ -42,9 +43,9 @@ def test_file_name_and_creation_time_parsing():
     assert name_time("2024-01-31_23-59-59-front.mp4") == utc(2024, 1, 31, 23, 59, 59)  # Tesla
     assert name_time("REC_2024_01_31_23_59_59_F.MP4") == utc(2024, 1, 31, 23, 59, 59)  # Thinkware
     assert name_time("GOPR0042.MP4") is None and name_time("clip_20241399_999999.mp4") is None
-    assert parse_creation_time("2017-04-17T19:27:57.000000Z") == utc(2017, 4, 17, 19, 27, 57)
+    assert creation_time_utc("2017-04-17T19:27:57.000000Z") == utc(2017, 4, 17, 19, 27, 57)
     for unset in ("1904-01-01T00:00:00Z", "1970-01-01T00:00:00Z", "2000-01-01T00:00:05Z", "garbage", None):
-        assert parse_creation_time(unset) is None
+        assert creation_time_utc(unset) is None
     assert parse_gps_time("2017:04:17 19:27:57.52602") == pytest.approx(utc(2017, 4, 17, 19, 27, 57) + 0.52602)
     assert parse_gps_time("2024:01:31 23:59:59+01:00") == utc(2024, 1, 31, 22, 59, 59)
     assert parse_gps_time("1999:08:22 00:00:00") is None  # a GPS week roll-over, not a real time
@@ -116,7 +117,7 @@ def test_a_separate_log_needs_a_checked_clock():
 def test_karma_clip_gives_its_utc_start_from_its_own_gps(karma_clip):
     e = read_embedded_gps(karma_clip)
     assert e is not None and e.timed and len(e.track) == 47 and "ExifTool" in e.reader
-    c = resolve_clock(12.0, embedded=e, creation_time=parse_creation_time("2017-04-17T19:27:57Z"))
+    c = resolve_clock(12.0, embedded=e, creation_time=creation_time_utc("2017-04-17T19:27:57Z"))
     assert KARMA_FIRST_FRAME[0] <= c.start_utc <= KARMA_FIRST_FRAME[1]
     assert c.notes == ()  # this camera's clock agrees with GPS time
     # The fixes follow the drone along the cliff: about 80 m north-west in 12 s.

@@ -2,11 +2,13 @@
 aligners, the matcher against OpenCV's, one decode pass with bounded memory."""
 
 import itertools
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from egovid.dashcam.align import ALIGNERS
 from egovid.dashcam.align.orb import (
     OrbScorer,
     ScaleRefiner,
@@ -15,8 +17,12 @@ from egovid.dashcam.align.orb import (
     smooth_monotone,
 )
 from egovid.dashcam.align.seqslam import align_seqslam, descriptor
-from egovid.dashcam.ingest.align import StreamingAlignment
 from egovid.dashcam.ingest.frames import RefFrames
+from egovid.dashcam.ingest.options import IngestOptions
+
+#: Standalone pieces in VP9, as before AV1: the joint encode is then the smaller, so these tests
+#: get the joint pieces they check (with AV1 standalone pieces they would be stored standalone).
+VP9 = IngestOptions(codec="vp9")
 
 
 def test_cross_check_matches_are_opencvs():
@@ -97,7 +103,7 @@ def test_streamed_alignment_gives_the_whole_sequence_aligners_matches(sequences,
     else:
         want = np.clip(np.round(prior), 0, len(ref) - 1)
     mem = MemoryRef(ref)
-    stream = StreamingAlignment(kind, mem, prior, speed_new, speed_ref, stopped, 30.0)
+    stream = ALIGNERS[kind](mem, prior, speed_new, speed_ref, stopped, 30.0)
     got, lag = [], 0
     for k, g in enumerate(new):
         got += stream.push(g)
@@ -117,7 +123,7 @@ def test_aligning_every_second_frame_searches_half_the_frames_and_keeps_the_matc
     got, searched = {}, {}
     for every in (1, 2):
         mem = MemoryRef(ref)
-        stream = StreamingAlignment("orb", mem, prior, speed_new, speed_ref, stopped, 30.0, every)
+        stream = ALIGNERS["orb"](mem, prior, speed_new, speed_ref, stopped, 30.0, every)
         step, calls = stream.search.step, []
         stream.search.step = lambda k, f, step=step, calls=calls: calls.append(k) or step(k, f)
         out = []
@@ -205,7 +211,7 @@ def test_an_ingest_decodes_its_video_once_and_holds_few_frames(tmp_path, monkeyp
     import av
 
     from egovid.dashcam.archive.store import Archive
-    from egovid.dashcam.ingest import ingest
+    from egovid.dashcam.ingest import ingest_videos
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
     noon = Light.preset("noon")
@@ -216,13 +222,13 @@ def test_an_ingest_decodes_its_video_once_and_holds_few_frames(tmp_path, monkeyp
     }.items():
         render_drive(spec, tmp_path / f"{name}.mp4", width=160, height=96)
     ar = Archive.create(tmp_path / "archive")
-    ingest(ar, tmp_path / "old.mp4")
+    ingest_videos(ar, [tmp_path / "old.mp4"], options=VP9)
     counts: dict = {}
     real_open = av.open
     monkeypatch.setattr(
         av, "open", lambda path, *a, **k: _CountingContainer(real_open(path, *a, **k), counts, str(path))
     )
-    rep = ingest(ar, tmp_path / "new.mp4")
+    (rep,) = ingest_videos(ar, [tmp_path / "new.mp4"], options=VP9).reports
     assert [p.mode for p in rep.pieces] == ["joint"] and rep.frames > 300
     assert counts == {str(tmp_path / "new.mp4"): rep.frames + 1}
     assert 0 < max(p.peak_frames_held for p in rep.pieces) < 80
@@ -267,7 +273,7 @@ def test_the_older_drive_read_while_the_baseline_is_chosen_changes_nothing_or_is
     import threading
 
     from egovid.dashcam.archive.store import Archive, open_archive
-    from egovid.dashcam.ingest import ingest
+    from egovid.dashcam.ingest import ingest_videos
     from egovid.dashcam.ingest import piece as piece_mod
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
@@ -279,12 +285,12 @@ def test_the_older_drive_read_while_the_baseline_is_chosen_changes_nothing_or_is
     }.items():
         render_drive(spec, tmp_path / f"{name}.mp4", width=160, height=96)
     base = tmp_path / "base"
-    ingest(Archive.create(base), tmp_path / "old.mp4")
+    ingest_videos(Archive.create(base), [tmp_path / "old.mp4"], options=VP9)
 
     def run(name: str):
         shutil.copytree(base, tmp_path / name)
         ar = open_archive(tmp_path / name)
-        rep = ingest(ar, tmp_path / "new.mp4")
+        (rep,) = ingest_videos(ar, [tmp_path / "new.mp4"], options=VP9).reports
         return rep, [(s.mode, s.blob, s.params["recon_digest"], s.refmap.tolist()) for s in ar.segments(rep.drive_id)]
 
     taken = []
@@ -322,7 +328,7 @@ def test_the_older_drives_frames_passed_on_the_way_are_kept_not_decoded_again(tm
     frame extract gives."""
     from egovid.dashcam import extract
     from egovid.dashcam.archive.store import Archive
-    from egovid.dashcam.ingest import ingest
+    from egovid.dashcam.ingest import ingest_videos
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
     render_drive(
@@ -332,7 +338,7 @@ def test_the_older_drives_frames_passed_on_the_way_are_kept_not_decoded_again(tm
         height=96,
     )
     ar = Archive.create(tmp_path / "archive")
-    rep = ingest(ar, tmp_path / "old.mp4")
+    (rep,) = ingest_videos(ar, [tmp_path / "old.mp4"], options=VP9).reports
     (seg,) = ar.segments(rep.drive_id)
     truth = list(extract.segment_frames(ar, seg))
     decoded = []
@@ -351,3 +357,76 @@ def test_the_older_drives_frames_passed_on_the_way_are_kept_not_decoded_again(tm
     finally:
         refs.close()
     assert len(decoded) == len(set(decoded)) and set(range(60)) <= set(decoded)
+
+
+def test_the_aligner_registry_is_what_the_cli_offers_and_checks():
+    """``--aligner`` names every registered aligner (its help is written out, so that ``--help``
+    does not load OpenCV), the default first, and the options refuse a name not registered."""
+    import inspect
+
+    from egovid.cli import dashcam as cli
+    from egovid.core.errors import EgovidError
+    from egovid.dashcam.align import DEFAULT_ALIGNER
+    from egovid.dashcam.ingest.options import IngestOptions
+
+    option = inspect.signature(cli.ingest).parameters["aligner"].default
+    offered = [part.split()[0] for part in option.help.rstrip(".").split(" | ")]
+    assert offered == list(ALIGNERS) and option.default == DEFAULT_ALIGNER == IngestOptions().aligner
+    for name, cls in ALIGNERS.items():
+        assert cls.name == name and IngestOptions(aligner=name).check().aligner == name
+    with pytest.raises(EgovidError, match="choose one of orb, orb-plain, seqslam, gps"):
+        IngestOptions(aligner="magic").check()
+
+
+def test_a_trip_is_probed_and_demuxed_once_per_file(tmp_path, monkeypatch):
+    """Two loop files of one drive through ingest_videos (the CLI's route): each file is probed
+    once and demuxed for its frame times once (the examination's probe travels with the drive;
+    the stages demuxed every file again, a batch a third time), then decoded once."""
+    import collections
+    import datetime as dt
+
+    import av
+
+    from egovid.core import video as core_video
+    from egovid.dashcam.archive.store import Archive
+    from egovid.dashcam.ingest import ingest_videos, sources, stages
+    from egovid.synth.drive import DriveSpec, Light, render_drive
+
+    day = dt.datetime(2026, 5, 4, 8, 0, 0, tzinfo=dt.UTC)
+    video, gps, _ = render_drive(
+        DriveSpec(legs=[("main", 100.0, 140.0)], cruise=10.0, seed=7, light=Light.preset("noon"), start_time=day),
+        tmp_path / "whole.mp4",
+        width=160,
+        height=96,
+        gps_format="nmea",
+    )
+    frames = [f.image for f in core_video.iter_frames(video, i420=True)]
+    (tmp_path / "card").mkdir()
+    for k, (a, b) in enumerate(itertools.pairwise([0, len(frames) // 2, len(frames)])):
+        t = day + dt.timedelta(seconds=a / 30.0)
+        with av.open(str(tmp_path / "card" / f"{t:%Y_%m%d_%H%M%S}_{k + 1:04d}F.MP4"), "w") as c:
+            c.metadata["creation_time"] = t.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+            s = c.add_stream("libx264", rate=30)
+            s.width, s.height, s.pix_fmt, s.options = 160, 96, "yuv420p", {"qp": "0", "preset": "ultrafast"}
+            for i, img in enumerate(frames[a:b]):
+                vf = av.VideoFrame.from_ndarray(img, format="yuv420p")
+                vf.pts = i
+                c.mux(s.encode(vf))
+            c.mux(s.encode())
+    calls: dict = collections.defaultdict(collections.Counter)
+
+    def counted(kind, real):
+        return lambda path, *a, **k: calls[kind].update([Path(path).name]) or real(path, *a, **k)
+
+    real_times = core_video.frame_times
+    for mod in (core_video, sources, stages):
+        monkeypatch.setattr(mod, "frame_times", counted("frame times", real_times))
+    monkeypatch.setattr(core_video, "_probe", counted("probe", core_video._probe))
+    core_video._PROBED.clear()
+    ar = Archive.create(tmp_path / "archive")
+    result = ingest_videos(ar, [tmp_path / "card"], gps=gps)
+    (rep,) = result.reports
+    names = sorted(p.name for p in (tmp_path / "card").iterdir())
+    assert rep.frames == len(frames)
+    assert result.to_dict()["files"] == [str((tmp_path / "card" / n).resolve()) for n in names]
+    assert calls == {"frame times": collections.Counter(names), "probe": collections.Counter(names)}

@@ -12,7 +12,7 @@ from egovid.dashcam.archive.blobs import FsspecBlobs, LocalBlobs
 from egovid.dashcam.archive.catalogue import Segment, SqliteCatalogue
 from egovid.dashcam.archive.locks import FileLocks, PgLocks
 from egovid.dashcam.codec import segment as codec
-from egovid.dashcam.codec import vpx
+from egovid.dashcam.codec.settings import EncoderSettings
 from egovid.dashcam.extract import segment_frames
 from egovid.dashcam.ingest.stages import CataloguePaths, PlannedPaths, split_path
 from egovid.dashcam.route.tracks import read_track
@@ -74,7 +74,7 @@ def test_a_stretch_is_read_by_byte_ranges_and_decodes_as_the_whole(tmp_path):
     w, h, n = 64, 48, 40
     base = rng.integers(0, 256, (h * 3 // 2 + 8, w + 40), dtype=np.uint8)
     frames = [np.ascontiguousarray(base[k % 8 : k % 8 + h * 3 // 2, k : k + w]) for k in range(n)]
-    st = vpx.EncoderSettings(q=30, speed=6, gop=4, refresh=8)
+    st = EncoderSettings(q=30, speed=6, gop=4, refresh=8)
     enc = codec.encode_segment(iter(frames), w, h, st)
     store = CountingStore(tmp_path / "blobs")
     sha = store.put(enc.blob)

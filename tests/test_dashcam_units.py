@@ -15,6 +15,7 @@ from egovid.dashcam.align.stops import stopped_frames
 from egovid.dashcam.archive.catalogue import PostgresCatalogue, SqliteCatalogue
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.codec import vpx
+from egovid.dashcam.codec.settings import EncoderSettings
 from egovid.dashcam.route.paths import match_path, resample, split_drive, split_points
 from egovid.dashcam.route.tracks import project, read_track
 
@@ -47,6 +48,30 @@ def test_nmea_checksums_void_and_dead_reckoning_fixes_are_dropped(tmp_path):
     assert g.lon[0] == pytest.approx(-(86 + 55.272 / 60))
     assert g.speed[0] == pytest.approx(20 * 0.514444)  # knots
     assert g.gaps(3.0) == [(t0 + 1, t0 + 5)]
+
+
+def test_a_log_file_and_a_text_track_merge_rmc_and_gga_alike(tmp_path):
+    """The same sentences in a log file and as samples of a video's text track give the same fixes:
+    one merge rule (an RMC and a GGA of one second make one fix, a GGA alone adds its position)."""
+    from egovid.dashcam.route.embedded import fixes_from_nmea_samples
+
+    lines = [
+        _nmea("GPRMC,080000.00,A,4025.4220,N,08655.2720,W,20.0,90.0,040526,,,A"),
+        _nmea("GPGGA,080000.00,4025.4221,N,08655.2721,W,1,09,0.9,190.0,M,-33.0,M,,"),  # RMC's second: RMC wins
+        _nmea("GPGGA,080001.00,4025.4220,N,08655.2600,W,1,09,0.9,190.0,M,-33.0,M,,"),
+        _nmea("GPGGA,080001.00,4025.4290,N,08655.2600,W,1,09,0.9,190.0,M,-33.0,M,,"),  # same second: first wins
+        _nmea("GPRMC,080002.00,A,4025.4220,N,08655.2500,W,20.0,90.0,040526,,,A"),
+        _nmea("GPRMC,080003.00,A,4025.4220,N,08655.2400,W,20.0,,040526,,,A"),  # no course
+    ]
+    p = tmp_path / "log.nmea"
+    p.write_text("\n".join(lines) + "\n")
+    log = read_track(p)
+    inside = fixes_from_nmea_samples([(0.1 * k, ln) for k, ln in enumerate(lines)]).track
+    t0 = dt.datetime(2026, 5, 4, 8, 0, 0, tzinfo=dt.UTC).timestamp()
+    np.testing.assert_allclose(log.t - t0, [0, 1, 2, 3])
+    for k in ("t", "lat", "lon", "speed", "bearing"):
+        np.testing.assert_array_equal(getattr(log, k), getattr(inside, k), err_msg=k)
+    assert log.lat[0] == pytest.approx(40 + 25.422 / 60) and log.lat[1] == pytest.approx(40 + 25.422 / 60)
 
 
 def test_gpx_and_csv_and_derived_speed(tmp_path):
@@ -240,7 +265,7 @@ def test_injected_reference_decodes_bit_exactly(kind, gop, refresh, realtime):
         return None if k == 5 else codec.apply_alignment(vpx.pad_i420(refs[k], w, h), w, h, kind, params)
 
     recon = []
-    settings = vpx.EncoderSettings(
+    settings = EncoderSettings(
         q=30, speed=9 if realtime else 6, realtime=realtime, gop=gop, refresh=refresh, start_speed=5 if realtime else 0
     )
     enc = codec.encode_segment(iter(frames), w, h, settings, baseline, keep_recon=recon, verify=True)
@@ -295,7 +320,7 @@ def test_a_run_started_from_the_baseline_is_cheaper_than_a_keyframe(realtime):
         ref, base = _i420(rng, w, h)
         refs.append(ref)
         frames.append(_i420(rng, w, h, base, 1)[0])
-    settings = vpx.EncoderSettings(q=20, speed=9 if realtime else 6, realtime=realtime, refresh=2)
+    settings = EncoderSettings(q=20, speed=9 if realtime else 6, realtime=realtime, refresh=2)
 
     def baseline(k):
         return vpx.pad_i420(refs[k], w, h)
@@ -317,7 +342,7 @@ def test_the_verifying_decoder_follows_the_chosen_runs_and_catches_a_wrong_pictu
     w, h, n, refresh = 64, 48, 20, 4  # 5 runs
     _ref, base = _i420(rng, w, h)
     frames = [_i420(rng, w, h, base, k % 6)[0] for k in range(n)]
-    settings = vpx.EncoderSettings(q=30, speed=6, gop=2, refresh=refresh)
+    settings = EncoderSettings(q=30, speed=6, gop=2, refresh=refresh)
     plan = codec.coding_plan(n, 2, refresh, [codec.START_KEY] * 5)
     real = vpx.VP9Decoder.decode
     decoded: list[int] = []
@@ -416,7 +441,7 @@ def test_version_1_and_2_low_delay_blobs_still_decode():
     rng = np.random.default_rng(4)
     frames = [_i420(rng, 32, 32)[0] for _ in range(4)]
     recon = []
-    blob = codec.encode_segment(iter(frames), 32, 32, vpx.EncoderSettings(q=40, speed=8), keep_recon=recon).blob
+    blob = codec.encode_segment(iter(frames), 32, 32, EncoderSettings(q=40, speed=8), keep_recon=recon).blob
     sb = codec.parse(blob)
     for version, gop in ((1, 0), (2, 1)):  # version 1 had no GOP, versions 1-2 no run layout
         head = codec._HEADER.pack(codec.MAGIC, version, 32, 32, 32, 32, len(sb.packets), sb.q, gop)
@@ -427,7 +452,7 @@ def test_version_1_and_2_low_delay_blobs_still_decode():
 def test_damaged_blob_is_refused():
     rng = np.random.default_rng(2)
     frames = [_i420(rng, 32, 32)[0] for _ in range(2)]
-    blob = codec.encode_segment(iter(frames), 32, 32, vpx.EncoderSettings(q=40, speed=8)).blob
+    blob = codec.encode_segment(iter(frames), 32, 32, EncoderSettings(q=40, speed=8)).blob
     with pytest.raises(EgovidError, match="truncated"):
         codec.parse(blob[:-5])
     with pytest.raises(EgovidError, match="format"):
@@ -513,3 +538,16 @@ def test_scale_refiner_finds_the_frame_level_with_the_new_one():
     assert got.min() >= 0 and got.max() <= 17
     assert np.mean(got == truth) >= 0.85 and np.max(np.abs(got - truth)) <= 1
     assert np.all(got[12:16] == got[11]) and np.all(np.diff(got) >= 0)
+
+
+def test_a_track_covering_less_than_80_percent_of_the_video_is_refused():
+    """The stages' coverage check is the clock's rule (hand-computed spans)."""
+    from egovid.core.errors import EgovidError
+    from egovid.dashcam.ingest.stages import check_coverage
+    from egovid.dashcam.route.tracks import GpsTrack
+
+    t = 1777881600.0 + np.arange(101.0)  # fixes over 100 s
+    track = GpsTrack(t, np.full(101, 40.0), np.full(101, -86.0), np.ones(101), np.zeros(101), "log.gpx")
+    check_coverage(track, t[10] + np.arange(0.0, 100.1, 0.5), "v.mp4", "log.gpx")  # 90 of 100 s
+    with pytest.raises(EgovidError, match=r"covers 50% of video v\.mp4"):
+        check_coverage(track, t[50] + np.arange(0.0, 100.1, 0.5), "v.mp4", "log.gpx")

@@ -103,9 +103,9 @@ def snapshot(folder: Path) -> dict[str, tuple]:
 
 def invoke(args: list[str], capsys) -> tuple[int, str, str]:
     """Run the CLI in this process; returns (exit status, stdout, stderr)."""
-    from egovid.core import video
+    from egovid.core.video.container import forget_accepted_cuts
 
-    video._TRUNCATED_OK.clear()
+    forget_accepted_cuts()
     capsys.readouterr()
     code = run([str(a) for a in args])
     gc.collect()  # close what the command left open (an SQLite catalogue's -wal file), as process exit would

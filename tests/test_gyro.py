@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from egovid.core.camera.telemetry import CameraTelemetry, ImuSamples, OrientationSamples
 from egovid.core.errors import EgovidError
 from egovid.core.motion import gyro
-from egovid.core.motion.source import choose_source
+from egovid.core.motion.source import REQUESTS, SOURCES, choose_source
 from egovid.core.rotations import angle_deg, so3_exp
 
 
@@ -130,6 +130,19 @@ def test_auto_source_follows_what_the_camera_recorded():
             choose_source(src, CameraTelemetry())
     with pytest.raises(EgovidError, match="unknown motion source"):
         choose_source("magic", gopro)
+
+
+def test_source_registry_says_what_each_source_needs():
+    """--source takes auto and the sources a user may name; camera-orientation only comes from auto."""
+    assert REQUESTS == ("auto", "vision", "gyro", "fused")
+    assert [n for n, s in SOURCES.items() if s.needs_gyro] == ["gyro", "fused"]
+    assert [n for n, s in SOURCES.items() if s.whole_vision] == ["vision", "fused"]
+    assert [n for n, s in SOURCES.items() if s.sensor] == ["gyro", "fused", "camera-orientation"]
+    imu = ImuSamples(np.arange(0, 1, 0.0025), np.zeros((400, 3)))
+    gopro = CameraTelemetry(make="GoPro", model="HERO5 Black", imu=imu, stabilization="N")
+    assert choose_source("gyro", gopro) == ("gyro", "asked for (GoPro HERO5 Black gyro, 400 Hz)")
+    with pytest.raises(EgovidError, match="unknown motion source"):
+        choose_source("camera-orientation", gopro)
 
 
 def test_camera_orientation_source_end_to_end(shaky_clip, monkeypatch):

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from egovid.core.camera.intrinsics import resolve_camera
+from egovid.core.camera.resolve import resolve_camera
 from egovid.core.motion.estimate import MotionOptions, estimate_motion
 from egovid.core.motion.pairwise import refine_by_prewarp, relative_rotation
 from egovid.core.rotations import angle_deg

@@ -8,11 +8,14 @@ import math
 import numpy as np
 import pytest
 
+from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.errors import EgovidError
+from egovid.core.trajectory import Trajectory, read_motion_csv, write_motion_csv
 from egovid.fpv.perception.intervals import position_error_deg, roll_intervals, yaw_pitch_intervals
 from egovid.fpv.perception.model import ViewingModel
 from egovid.fpv.perception.score import score_angles, world_intervals
 from egovid.fpv.perception.ve import sve_windows, ve_bruteforce, ve_windows
+from egovid.fpv.score import score_video
 from egovid.synth import motions
 
 HFOV, VFOV = 98.3, 66.1
@@ -157,3 +160,22 @@ def test_low_frame_rate_is_resampled_and_bad_input_refused():
         score_angles(np.zeros((8, 3)), 30, HFOV, VFOV)
     with pytest.raises(EgovidError, match="three columns"):
         score_angles(np.zeros((30, 2)), 30, HFOV, VFOV)
+
+
+def test_score_video_of_a_motion_csv_is_score_angles(tmp_path):
+    """`fpv score --motion` (score_video) scores the CSV's angles at the rate of its time column
+    with the intrinsics of --size: the same as score_angles on what the CSV holds."""
+    a = motions.running(90, 6.0, 1.5, 24, 1.0) + motions.jitter(90, seed=2)
+    csv = write_motion_csv(tmp_path / "m.csv", Trajectory.from_euler(np.arange(90) / 25.0, a))
+    rep = score_video(motion=csv, size=(1280, 720), json_out=tmp_path / "s.json")
+    assert list(rep.results) == ["ve", "sve"] and rep.intrinsics_source == "default"
+    held = read_motion_csv(csv)
+    fps = 1.0 / float(np.median(np.diff(held.times)))
+    assert fps == pytest.approx(25.0)
+    intr = Intrinsics.default(1280, 720)
+    for m in ("ve", "sve"):
+        ref = score_angles(held.euler(), fps, intr.hfov_deg, intr.vfov_deg, method=m)
+        assert rep.results[m].score == ref.score
+        assert np.array_equal(rep.results[m].combined, ref.combined)
+    with pytest.raises(EgovidError, match="2D-VE needs the video"):
+        score_video(motion=csv, method="ve2d")

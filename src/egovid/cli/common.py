@@ -110,7 +110,8 @@ def check_output(path: Path, *, overwrite: bool = True, inputs=(), exts: str = "
 
 @contextlib.contextmanager
 def staged_progress() -> Iterator[Callable[[str, int, int], None]]:
-    """One Rich progress display with a bar per stage; yields ``update(stage, done, total)``."""
+    """One Rich progress display with a bar per stage; yields ``update(stage, done, total)``. The
+    display starts with the first update (a job that reports nothing shows nothing)."""
     progress = Progress(
         TextColumn("[bold]{task.description:<9}"),
         BarColumn(),
@@ -119,12 +120,17 @@ def staged_progress() -> Iterator[Callable[[str, int, int], None]]:
         TimeRemainingColumn(),
         console=err_console,
     )
-    with progress:
-        tasks: dict[str, int] = {}
+    tasks: dict[str, int] = {}
 
-        def update(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = progress.add_task(stage, total=total)
-            progress.update(tasks[stage], completed=done, total=max(total, done))
+    def update(stage: str, done: int, total: int) -> None:
+        if not tasks:
+            progress.start()
+        if stage not in tasks:
+            tasks[stage] = progress.add_task(stage, total=total)
+        progress.update(tasks[stage], completed=done, total=max(total, done))
 
+    try:
         yield update
+    finally:
+        if tasks:
+            progress.stop()

@@ -21,20 +21,6 @@ def _open(archive: Path):
     return open_archive(archive)
 
 
-def _user_drive(ar, key: str):
-    """A drive by name or id, as the user sees the archive: not one a forget hid (kept only for
-    the frames other drives are coded against)."""
-    from egovid.core.errors import EgovidError
-    from egovid.dashcam.archive.fleetstore import hidden_drive_ids
-
-    d = ar.catalogue.drive(key)
-    hidden = hidden_drive_ids(ar.catalogue)
-    if d is None or d.id in hidden:
-        names = ", ".join(x.name for x in ar.catalogue.drives() if x.id not in hidden) or "none"
-        raise EgovidError(f"no drive {key!r} in {ar.root}", f"drives in the archive: {names}")
-    return d
-
-
 @app.command("init")
 def init(
     archive: Path = typer.Argument(..., help="Folder to create the archive in (new or empty)."),
@@ -59,16 +45,13 @@ def init(
     in an object store (--blobs); the folder then holds only the marker that names them.
     """
     from egovid.cli.validate import output_folder
-    from egovid.dashcam.archive.catalogue import redact_url
     from egovid.dashcam.archive.fleetstore import FleetStore
     from egovid.dashcam.archive.store import Archive
-    from egovid.dashcam.codec.vpx import self_test
+    from egovid.dashcam.codec.registry import describe
 
     output_folder(archive, what="archive folder")
     ar = Archive.create(archive, db, blobs, setup=FleetStore)  # the fleet tables (PostGIS where the server has it)
-    cat = ar.meta["catalogue"]
-    where = "SQLite" if cat["backend"] == "sqlite" else f"PostgreSQL {redact_url(cat['url'])}, schema {cat['schema']}"
-    console.print(f"archive {archive} created (catalogue: {where}; blobs: {ar.blobs.url}; codec: {self_test()})")
+    console.print(f"archive {archive} created (catalogue: {ar.where}; blobs: {ar.blobs.url}; codec: {describe()})")
 
 
 @app.command("ingest")
@@ -106,14 +89,33 @@ def ingest(
     preset: str = typer.Option(
         None,
         "--preset",
-        help="realtime (default: libvpx's realtime deadline, the fastest; about 30 fps for a 720p drive coded "
-        "against an older one on two cores; the older drive saves 25 % on the different-day set) | balanced "
-        "(libvpx's good-quality deadline on 2 threads: 31 %, about 4x slower) | archive (good-quality, "
-        "1 thread: smallest files, slowest). See docs/dashcam.md. The options below override it.",
+        help="realtime (default: pieces stored standalone in SVT-AV1 preset 10; a piece with an older drive "
+        "is also coded against it in VP9 at libvpx's realtime deadline and the smaller at equal PSNR-Y kept) | "
+        "balanced (SVT-AV1 preset 8; VP9 good-quality deadline, 2 threads) | archive (SVT-AV1 preset 6; VP9 "
+        "good quality, 1 thread: slowest). Figures in docs/dashcam.md say which baseline they are against: "
+        "through this command the archive is within 0.3 % of plain SVT-AV1 at the same preset and keyframe "
+        "spacing (BD-rate, PSNR-Y) and 29-32 % smaller than libvpx VP9 realtime. The options below override it.",
     ),
-    q: int = typer.Option(32, min=0, max=63, help="VP9 quantiser (0 = best quality, 63 = smallest)."),
-    speed: int = typer.Option(None, min=0, max=9, help="libvpx cpu-used (default: the preset's): higher = faster."),
-    threads: int = typer.Option(None, min=1, max=64, help="libvpx threads (default: the preset's)."),
+    q: int = typer.Option(
+        32,
+        min=0,
+        max=63,
+        help="Quantiser on libvpx's 0-63 scale (0 = best quality, 63 = smallest): VP9 pieces at q, AV1 pieces at "
+        "SVT-AV1 CRF q + 14, measured to give the same PSNR-Y.",
+    ),
+    codec: str = typer.Option(
+        None,
+        "--codec",
+        help="What pieces stored standalone are coded with: av1 (default: SVT-AV1, decoded with dav1d) | vp9 "
+        "(libvpx, as archives before AV1). A piece with an older drive is coded both ways, against the older "
+        "drive (VP9) and standalone, and the smaller at equal PSNR-Y is kept.",
+    ),
+    speed: int = typer.Option(
+        None, min=0, max=9, help="libvpx cpu-used of the VP9 joint candidate (default: the preset's): higher = faster."
+    ),
+    threads: int = typer.Option(
+        None, min=1, max=64, help="Encoder threads, libvpx's and SVT-AV1's (default: the preset's)."
+    ),
     gop: int = typer.Option(
         8,
         min=1,
@@ -163,11 +165,8 @@ def ingest(
     """
     from egovid.cli import validate
     from egovid.core.engine import EngineConfig, scheduler_address
-    from egovid.core.errors import EgovidError
-    from egovid.dashcam.ingest import IngestOptions
-    from egovid.dashcam.ingest.fleet import drive_input, prepare
-    from egovid.dashcam.ingest.run import ingest_drive, ingest_many, plan_batch
-    from egovid.dashcam.ingest.sources import ClockOptions, plan_ingest
+    from egovid.core.files import atomic_write_text
+    from egovid.dashcam import ingest as library
 
     validate.number(gps_offset, "--gps-offset", lo=-7 * 86400, hi=7 * 86400, unit="s")
     validate.number(tz_offset, "--tz-offset", lo=-14, hi=14, unit="hours")
@@ -181,9 +180,10 @@ def ingest(
             validate.input_file(v, "video")
     log = validate.gps_input(gps) if gps is not None else None
     validate.outputs(videos, (json_out, validate.JSON, "--json"))
-    opts = IngestOptions.from_preset(
+    opts = library.IngestOptions.from_preset(
         preset,
         q=q,
+        codec=codec,
         speed=speed,
         threads=threads,
         gop=gop,
@@ -193,77 +193,48 @@ def ingest(
         measure_savings=measure_savings,
         verify=verify,
     ).check()
-    config = EngineConfig(scheduler=scheduler_address(scheduler), workers=workers, retries=2)
+    engine = EngineConfig(scheduler=scheduler_address(scheduler), workers=workers, retries=2)
     with staged_progress() as cb:
-        plan = plan_ingest(
+        result = library.ingest_videos(
+            ar,
             videos,
             gps=log,
-            clock=ClockOptions(start_utc, tz_offset, gps_offset),
+            clock=library.ClockOptions(start_utc, tz_offset, gps_offset),
+            name=name,
             join=join,
             max_gap=max_gap,
-            on_file=lambda k, n: cb("examine", k, n),
+            lock_events=lock_events,
+            options=opts,
+            engine=engine,
+            hooks=library.IngestHooks(
+                progress=cb,
+                skipped=lambda path, why: err_console.print(f"skipped {path}: {why}"),
+                batch=lambda n, where: console.print(f"{n} drives, oldest first, on {where} (preset {opts.preset})"),
+                drive=_print_outcome,
+            ),
         )
-        prepared = prepare(ar, plan, name=name, lock_events=lock_events)
-    for path, why in plan.skipped:
-        err_console.print(f"skipped {path}: {why}")
-    skipped = [{"file": str(f), "reason": why} for f, why in plan.skipped]
-    if not prepared:
-        if any(why.startswith("already in the archive") for _f, why in plan.skipped):
-            # The same card again (a sync job): nothing new is not a failure (the rest is listed above).
-            if json_out is not None:
-                from egovid.core.files import atomic_write_text
-
-                atomic_write_text(json_out, json.dumps({"drives": [], "failed": [], "skipped": skipped}, indent=1))
-            console.print("nothing new: the drives of these videos are already in the archive")
-            return
-        raise EgovidError("nothing to ingest: every video was skipped", "see the reasons above")
-    fleet = {p.name: p for p in prepared}
-    drives = [drive_input(p) for p in prepared]
-    if len(drives) == 1 and config.scheduler is None:
-        with staged_progress() as cb:
-            rep = ingest_drive(ar, drives[0], opts, progress=cb)
-        _print_report(rep, fleet.get(rep.name))
-        if json_out is not None:
-            from egovid.core.files import atomic_write_text
-
-            doc = {**rep.to_dict(), **fleet[rep.name].summary(), "skipped": skipped}
-            atomic_write_text(json_out, json.dumps(doc, indent=1, default=str))
-        return
-    batch = plan_batch(ar, drives, opts)
-    where = f"Dask cluster {config.scheduler}" if config.scheduler else f"{workers} local worker(s)"
-    console.print(f"{len(batch.jobs)} drives, oldest first, on {where} (preset {opts.preset})")
-    results, failed = [], []
-    with staged_progress() as cb:
-        cb("drives", 0, len(batch.jobs))
-        for res in ingest_many(ar, batch, config):
-            if res.report is not None:
-                results.append(res.report)
-                _print_report(res.report, fleet.get(res.report.name))
-            else:
-                failed.append(res)
-                console.print(f"[red]drive {res.name!r} not added[/]: {res.error}")
-            cb("drives", len(results) + len(failed), len(batch.jobs))
     if json_out is not None:
-        from egovid.core.files import atomic_write_text
+        atomic_write_text(json_out, json.dumps(result.to_dict(), indent=1, default=str))
+    if result.nothing_new:  # the same card again (a sync job): not a failure (the rest is listed above)
+        console.print("nothing new: the drives of these videos are already in the archive")
+    result.check()
 
-        doc = {
-            "drives": [{**r.to_dict(), **fleet[r.name].summary()} for r in results],
-            "failed": [{"drive": f.name, "error": f.error} for f in failed],
-            "skipped": skipped,
-        }
-        atomic_write_text(json_out, json.dumps(doc, indent=1, default=str))
-    if failed:
-        raise EgovidError(
-            f"{len(failed)} of {len(batch.jobs)} drives were not added ({', '.join(f.name for f in failed)})",
-            "see the reasons above; the other drives are in the archive, run the command again for these",
-        )
+
+def _print_outcome(outcome) -> None:
+    """A drive of the ingest ended: its report, or why it was not added."""
+    if outcome.report is not None:
+        _print_report(outcome.report, outcome.prepared)
+    else:
+        console.print(f"[red]drive {outcome.name!r} not added[/]: {outcome.error}")
 
 
 def _print_report(rep, fleet=None) -> None:
     """An ingest's report on the console (``fleet``: the prepared drive, for its files and clock)."""
     for p in rep.pieces:
-        saving = f", saving {100 * p.saving:.1f} % vs standalone" if p.saving is not None else ""
+        saving = f", saving {100 * p.saving:.1f} % vs standalone AV1" if p.ref_drive and p.saving is not None else ""
         ref = f" against {p.ref_drive}" if p.ref_drive else " (root: no older drive of this path and light)"
+        if not p.ref_drive and p.standalone_bytes is not None:
+            ref = " (standalone: smaller than coded against the older drive)"
         console.print(
             f"{rep.name} frames {p.frames[0]}-{p.frames[1] - 1}: path {p.path_id}, {p.mode}{ref}, "
             f"{p.bytes / 1024:.0f} KiB, PSNR-Y {p.psnr_y:.2f} dB{saving}"
@@ -277,27 +248,42 @@ def _print_report(rep, fleet=None) -> None:
         err_console.print(f"note: {rep.name}: {note}")
 
 
+def _table(title: str, columns: tuple[str, ...], rows, right: tuple[str, ...] | bool = ()):
+    """A Rich table of ``rows`` (tuples of strings); ``right``: the columns aligned right (True: all)."""
+    from rich.table import Table
+
+    t = Table(title=title)
+    for col in columns:
+        t.add_column(col, justify="right" if right is True or col in right else "left")
+    for row in rows:
+        t.add_row(*row)
+    return t
+
+
+def _kib(n: float) -> str:
+    return f"{n / 1024:.0f} KiB"
+
+
 @app.command("list")
 def list_cmd(archive: Path = typer.Argument(..., help="Archive folder.")) -> None:
     """List the drives in the archive."""
     import datetime as dt
 
-    from rich.table import Table
+    from egovid.dashcam.report import list_drives
 
-    from egovid.dashcam.archive.fleetstore import hidden_drive_ids
-
-    ar = _open(archive)
-    t = Table(title=str(archive))
-    for col in ("id", "drive", "start (UTC)", "frames", "size", "stored", "modes"):
-        t.add_column(col)
-    hidden = hidden_drive_ids(ar.catalogue)  # kept only for the frames other drives are coded against
-    for d in (d for d in ar.catalogue.drives() if d.id not in hidden):
-        segs = ar.catalogue.segments(d.id)
-        size = sum(s.bytes for s in segs)
-        modes = ", ".join(sorted({s.mode for s in segs}))
-        start = dt.datetime.fromtimestamp(d.start_utc, dt.UTC).strftime("%Y-%m-%d %H:%M:%S")
-        t.add_row(str(d.id), d.name, start, str(d.frames), f"{d.width}x{d.height}", f"{size / 1024:.0f} KiB", modes)
-    console.print(t)
+    rows = [
+        (
+            str(r.drive.id),
+            r.drive.name,
+            dt.datetime.fromtimestamp(r.drive.start_utc, dt.UTC).strftime("%Y-%m-%d %H:%M:%S"),
+            str(r.drive.frames),
+            f"{r.drive.width}x{r.drive.height}",
+            _kib(r.bytes),
+            ", ".join(r.modes),
+        )
+        for r in list_drives(_open(archive))
+    ]
+    console.print(_table(str(archive), ("id", "drive", "start (UTC)", "frames", "size", "stored", "modes"), rows))
 
 
 @app.command("show")
@@ -306,22 +292,23 @@ def show(
     drive: str = typer.Argument(..., help="Drive name or id."),
 ) -> None:
     """Show how a drive is stored: its path sequences and segments."""
-    ar = _open(archive)
-    d = _user_drive(ar, drive)
+    from egovid.dashcam.report import describe_drive
+
+    lay = describe_drive(_open(archive), drive)
+    d = lay.drive
     console.print(f"[bold]{d.name}[/] (id {d.id}): {d.frames} frames, {d.width}x{d.height} @ {d.fps:g} fps")
     console.print(f"source {d.source}\nGPS    {d.gps_source}")
-    for s in ar.catalogue.sequences(drive_id=d.id):
+    for s in lay.sequences:
         console.print(
             f"  path {s.path_id}: frames {s.frame_start}-{s.frame_end - 1}, "
             f"{s.positions.min():.0f}-{s.positions.max():.0f} m along the path, segment {s.segment_id}"
         )
-    for g in ar.catalogue.segments(d.id):
-        ref = ar.catalogue.drive(g.ref_drive_id).name if g.ref_drive_id else None
+    for g, ref in lay.segments:
         alone = g.params.get("standalone_bytes")
-        extra = f", standalone {alone / 1024:.0f} KiB ({100 * (1 - g.bytes / alone):.1f} % saved)" if alone else ""
+        extra = f", standalone {_kib(alone)} ({100 * (1 - g.bytes / alone):.1f} % saved)" if alone else ""
         console.print(
             f"  segment {g.id}: frames {g.frame_start}-{g.frame_end - 1}, {g.mode}"
-            f"{' against ' + ref if ref else ''}, {g.bytes / 1024:.0f} KiB, "
+            f"{' against ' + ref if ref else ''}, {_kib(g.bytes)}, "
             f"PSNR-Y {g.params.get('psnr_y', float('nan')):.2f} dB{extra}"
         )
 
@@ -340,23 +327,14 @@ def extract(
     random-access point before it (every 24 frames by default), in this drive and in the older
     drives it was coded against.
     """
-    from egovid.core.errors import EgovidError
+    from egovid.dashcam.extract import extract_drive, plan_extract
 
     ar = _open(archive)
     check_output(out, exts=".mkv .mp4")
-    d = _user_drive(ar, drive)
-    f0 = round((start or 0.0) * d.fps)
-    f1 = d.frames if duration is None else min(d.frames, f0 + max(1, round(duration * d.fps)))
-    if f0 >= d.frames:
-        raise EgovidError(
-            f"--start {start} s is past the end of drive {d.name} ({d.frames / d.fps:.1f} s)", "choose an earlier start"
-        )
-    from egovid.dashcam.archive.fleetstore import extract_extras
-    from egovid.dashcam.extract import extract_video
-
+    job = plan_extract(ar, drive, start, duration)  # checked before the progress display starts
     with staged_progress() as cb:
-        extract_video(ar, d, out, progress=lambda k, n: cb("extract", k, n), frames=(f0, f1), **extract_extras(ar, d))
-    console.print(f"{d.name}: frames {f0}-{f1 - 1} of {d.frames} → {out}")
+        extract_drive(ar, job, out, lambda k, n: cb("extract", k, n))
+    console.print(f"{job.drive.name}: frames {job.frame_start}-{job.frame_end - 1} of {job.drive.frames} → {out}")
 
 
 @app.command("gc")
@@ -372,9 +350,9 @@ def gc(
     ar = _open(archive)
     junk, size = ar.collect_garbage(dry_run=dry_run)
     verb = "would delete" if dry_run else "deleted"
-    console.print(f"{verb} {len(junk)} unreferenced file(s), {size / 1024:.0f} KiB")
+    console.print(f"{verb} {len(junk)} unreferenced file(s), {_kib(size)}")
     for f in junk:
-        console.print(f"  {f.name} ({f.size / 1024:.0f} KiB)")
+        console.print(f"  {f.name} ({_kib(f.size)})")
 
 
 @app.command("report")
@@ -394,87 +372,66 @@ def report(
 ) -> None:
     """Bits per path and per drive, and the savings of joint coding; with --html, a map of the
     drives (tracks coloured by drive or by saving, click one for its details)."""
-    from rich.table import Table
-
     from egovid.cli import validate
+    from egovid.core.files import atomic_write_text
+    from egovid.dashcam.mapdata import archive_map
     from egovid.dashcam.report import archive_report
 
     validate.choice(colour, "--colour", ("drive", "saving"))
     validate.outputs([], (json_out, validate.JSON, "--json"), (html_out, validate.HTML, "--html"))
     ar = _open(archive)
     rep = archive_report(ar)
-    t = Table(title="paths")
-    for col in ("path", "length", "sequences", "frames", "stored", "bits/frame", "saving"):
-        t.add_column(col, justify="right")
-    for p in rep["paths"]:
-        sv = f"{100 * p['saving']:.1f} %" if p["saving"] is not None else "-"
-        t.add_row(
+    saving = lambda v: f"{100 * v:.1f} %" if v is not None else "-"  # noqa: E731
+    paths = [
+        (
             str(p["path"]),
             f"{p['length_m']:.0f} m",
             str(p["sequences"]),
             str(p["frames"]),
-            f"{p['bytes'] / 1024:.0f} KiB",
+            _kib(p["bytes"]),
             f"{p['bits_per_frame']:.0f}",
-            sv,
+            saving(p["saving"]),
         )
-    console.print(t)
-    t = Table(title="drives")
-    for col in ("drive", "frames", "stored", "bits/frame", "joint frames", "saving", "references"):
-        t.add_column(col, justify="right")
-    for d in rep["drives"]:
-        sv = f"{100 * d['saving_on_joint_frames']:.1f} %" if d["saving_on_joint_frames"] is not None else "-"
-        t.add_row(
+        for p in rep["paths"]
+    ]
+    cols = ("path", "length", "sequences", "frames", "stored", "bits/frame", "saving")
+    console.print(_table("paths", cols, paths, right=True))
+    drives = [
+        (
             d["drive"],
             str(d["frames"]),
-            f"{d['bytes'] / 1024:.0f} KiB",
+            _kib(d["bytes"]),
             f"{d['bits_per_frame']:.0f}",
             str(d["joint_frames"]),
-            sv,
+            saving(d["saving_on_joint_frames"]),
             ", ".join(d["references"]) or "-",
         )
-    console.print(t)
-    console.print(f"bitstreams in {rep['blobs']}: {rep['blob_bytes'] / 1024:.0f} KiB; {rep['codec']}")
+        for d in rep["drives"]
+    ]
+    cols = ("drive", "frames", "stored", "bits/frame", "joint frames", "saving", "references")
+    console.print(_table("drives", cols, drives, right=True))
+    console.print(f"bitstreams in {rep['blobs']}: {_kib(rep['blob_bytes'])}; {rep['codec']}")
     if json_out is not None:
-        from egovid.core.files import atomic_write_text
-
         atomic_write_text(json_out, json.dumps(rep, indent=1, default=str))
     if html_out is not None:
-        from egovid.core.files import atomic_write_text
-        from egovid.dashcam.archive.fleetstore import FleetStore
-        from egovid.dashcam.mapdata import map_drives
-        from egovid.dashcam.mapview import OSM_TILES, render_map
-
-        drives, missing = map_drives(ar, FleetStore(ar.catalogue))
-        url = {"osm": OSM_TILES, "none": None}.get(tiles, tiles)
-        atomic_write_text(
-            html_out,
-            render_map(drives, title=f"{archive.resolve().name}: {len(drives)} drives", tiles=url, colour_by=colour),
-        )
-        note = f" ({len(missing)} drive(s) without a GPS track: {', '.join(missing)})" if missing else ""
-        console.print(f"map of {len(drives)} drive(s) → {html_out}{note}")
+        page = archive_map(ar, colour_by=colour, tiles=tiles)
+        atomic_write_text(html_out, page.html)
+        note = f" ({len(page.missing)} drive(s) without a GPS track: {', '.join(page.missing)})" if page.missing else ""
+        console.print(f"map of {len(page.drives)} drive(s) → {html_out}{note}")
 
 
 # -- the fleet commands: find, clip, forget, lock, unlock -------------------------------------------
 
 
-def _fleet(archive: Path):
-    from egovid.dashcam.archive.fleetstore import FleetStore
-
-    ar = _open(archive)
-    return ar, FleetStore(ar.catalogue)
-
-
 def _utc(text: str, option: str) -> float:
     """``--at``/``--from``/``--to``: ISO 8601 (``2024-05-04T08:00:00Z``, ``+02:00``; no zone = UTC)."""
-    import datetime as dt
-
     from egovid.core.errors import EgovidError
+    from egovid.core.times import iso_to_utc
 
     try:
-        t = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+        return iso_to_utc(text)
     except ValueError:
         raise EgovidError(f"{option} {text!r} is not an ISO 8601 time", "write e.g. 2024-05-04T08:00:00Z") from None
-    return (t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp()
 
 
 def _floats(text: str, n: int, option: str, example: str) -> tuple[float, ...]:
@@ -499,6 +456,14 @@ def _write_json(target: str, obj) -> None:
     atomic_write_text(Path(target), json.dumps(obj, indent=1, default=str))
 
 
+def _json_output(json_out: str | None) -> None:
+    """Check a ``--json`` file before the work (``-``, stdout, needs no check)."""
+    if json_out not in (None, "-"):
+        from egovid.cli import validate
+
+        validate.outputs([], (Path(json_out), validate.JSON, "--json"))
+
+
 @app.command("find")
 def find_cmd(
     archive: Path = typer.Argument(..., help="Archive folder."),
@@ -517,9 +482,6 @@ def find_cmd(
     Uses the catalogue's spatial index (SQLite R*Tree; PostGIS or a GiST index in PostgreSQL)
     over the drives' GPS tracks.
     """
-    from rich.table import Table
-
-    from egovid.cli import validate
     from egovid.dashcam.find import Query, search
     from egovid.dashcam.route.clock import iso
 
@@ -530,21 +492,25 @@ def find_cmd(
         t_from=_utc(t_from, "--from") if t_from else None,
         t_to=_utc(t_to, "--to") if t_to else None,
     )
-    if json_out not in (None, "-"):
-        validate.outputs([], (Path(json_out), validate.JSON, "--json"))
-    _ar, fleet = _fleet(archive)
-    found = search(fleet, q)
+    _json_output(json_out)
+    found = search(_open(archive), q)
     if json_out is not None:
         _write_json(json_out, [s.to_dict() for s in found])
         if json_out == "-":
             return
-    t = Table(title=f"{len(found)} stretch(es)")
-    for col in ("drive", "kind", "start (UTC)", "end (UTC)", "frames", "closest"):
-        t.add_column(col, justify="right" if col in ("frames", "closest") else "left")
-    for s in found:
-        dist = f"{s.distance_m:.1f} m" if s.distance_m is not None else "-"
-        t.add_row(s.drive, s.kind, iso(s.start_utc), iso(s.end_utc), f"{s.frame_start}-{s.frame_end - 1}", dist)
-    console.print(t)
+    cols = ("drive", "kind", "start (UTC)", "end (UTC)", "frames", "closest")
+    rows = [
+        (
+            s.drive,
+            s.kind,
+            iso(s.start_utc),
+            iso(s.end_utc),
+            f"{s.frame_start}-{s.frame_end - 1}",
+            f"{s.distance_m:.1f} m" if s.distance_m is not None else "-",
+        )
+        for s in found
+    ]
+    console.print(_table(f"{len(found)} stretch(es)", cols, rows, right=("frames", "closest")))
 
 
 @app.command("clip")
@@ -573,19 +539,12 @@ def clip_cmd(
     validate.number(radius, "--radius", lo=0, lo_open=True, hi=100_000, unit="m")
     validate.number(before, "--before", lo=0, hi=3600, unit="s")
     validate.number(after, "--after", lo=0, hi=3600, unit="s")
-    ar, fleet = _fleet(archive)
-    plan = plan_clip(
-        ar,
-        fleet,
-        at=_utc(at, "--at") if at else None,
-        near=_floats(near, 2, "--near", "48.1372,11.5756") if near else None,
-        radius=radius,
-        drive=drive,
-        before=before,
-        after=after,
-    )
+    moment = _utc(at, "--at") if at else None
+    place = _floats(near, 2, "--near", "48.1372,11.5756") if near else None
+    ar = _open(archive)
+    plan = plan_clip(ar, at=moment, near=place, radius=radius, drive=drive, before=before, after=after)
     with staged_progress() as cb:
-        rep = write_clip(ar, fleet, plan, out, crf=crf, lossless=lossless, progress=lambda k, n: cb("clip", k, n))
+        rep = write_clip(ar, plan, out, crf=crf, lossless=lossless, progress=lambda k, n: cb("clip", k, n))
     extra = f", with {' and '.join(rep['streams'])}" if rep["streams"] else ""
     gpx = f"; {rep['gpx']} ({rep['gps_fixes']} fixes)" if rep["gpx"] else "; no GPS fixes in the stretch"
     console.print(
@@ -617,46 +576,30 @@ def forget_cmd(
     leaves only unreferenced bitstreams for `egovid dashcam gc`.
     """
     from egovid.core.errors import EgovidError
-    from egovid.dashcam.forget import choose, forget_drives
+    from egovid.dashcam.forget import forget
     from egovid.dashcam.retention import parse_duration, parse_size
 
     age = parse_duration(older_than) if older_than else None
     budget = parse_size(keep_bytes) if keep_bytes else None
     if not drives and age is None and budget is None:
         raise EgovidError("nothing to forget", "name drives, or give --older-than AGE and/or --keep-bytes SIZE")
-    if json_out not in (None, "-"):
-        from egovid.cli import validate
-
-        validate.outputs([], (Path(json_out), validate.JSON, "--json"))
-    ar, fleet = _fleet(archive)
-    chosen, skipped = choose(ar, fleet, list(drives or []), older_than_s=age, keep_bytes=budget)
-    for name in skipped:
-        err_console.print(f"kept {name}: locked")
-    if not chosen:
-        if json_out is not None:
-            _write_json(json_out, {"forgotten": [], "skipped_locked": skipped, "bytes_freed": 0})
-        (err_console if json_out == "-" else console).print("nothing to forget")
-        return
-    rep = forget_drives(ar, fleet, chosen, verify=verify, dry_run=dry_run, say=err_console.print)
-    rep.skipped_locked = skipped
-    verb = "would forget" if dry_run else "forgot"
+    _json_output(json_out)
+    rep = forget(
+        _open(archive), list(drives or []), older_than_s=age, keep_bytes=budget, verify=verify, dry_run=dry_run,
+        say=err_console.print,
+    )  # fmt: skip
     out = err_console if json_out == "-" else console  # stdout holds only the JSON then
-    out.print(f"{verb} {len(rep.forgotten)} drive(s): {', '.join(rep.forgotten)}")
+    if not rep.forgotten:
+        if json_out is not None:
+            _write_json(json_out, {"forgotten": [], "skipped_locked": rep.skipped_locked, "bytes_freed": 0})
+        out.print("nothing to forget")
+        return
+    out.print(f"{'would forget' if dry_run else 'forgot'} {len(rep.forgotten)} drive(s): {', '.join(rep.forgotten)}")
     for name, needers in rep.kept_as_reference.items():
         out.print(f"  {name}: kept only the frames {', '.join(needers)} are coded against (hidden)")
     out.print(f"{'would free' if dry_run else 'freed'} {rep.bytes_freed / 1024**2:.2f} MiB ({rep.bytes_freed} bytes)")
     if json_out is not None:
         _write_json(json_out, rep.to_dict())
-
-
-def _set_lock(archive: Path, drives: list[str], locked: bool, note: str | None) -> None:
-    ar, fleet = _fleet(archive)
-    with ar.catalogue.transaction():
-        found = [fleet.live_drive(k) for k in drives]
-        for d in found:
-            fleet.set_lock(d.id, locked, note if locked else None)
-    verb = "locked" if locked else "unlocked"
-    console.print(f"{verb} {', '.join(d.name for d in found)}")
 
 
 @app.command("lock")
@@ -666,7 +609,10 @@ def lock_cmd(
     note: str = typer.Option(None, "--note", help="Why (shown by forget when it refuses)."),
 ) -> None:
     """Protect drives from `forget` and its policies (event files are locked when ingested)."""
-    _set_lock(archive, drives, True, note)
+    from egovid.dashcam.forget import set_lock
+
+    found = set_lock(_open(archive), drives, True, note)
+    console.print(f"locked {', '.join(d.name for d in found)}")
 
 
 @app.command("unlock")
@@ -675,7 +621,10 @@ def unlock_cmd(
     drives: list[str] = typer.Argument(..., help="Drives to unprotect (names or ids)."),
 ) -> None:
     """Let `forget` remove drives again."""
-    _set_lock(archive, drives, False, None)
+    from egovid.dashcam.forget import set_lock
+
+    found = set_lock(_open(archive), drives, False)
+    console.print(f"unlocked {', '.join(d.name for d in found)}")
 
 
 @app.command("check")
@@ -696,7 +645,6 @@ def check(
     Prints what it found; exits with status 2 when something cannot be read back.
     """
     from egovid.cli.validate import input_folder, writable_folder
-    from egovid.core.errors import EgovidError
     from egovid.dashcam.check import check_archive
 
     input_folder(archive, "archive folder")
@@ -713,13 +661,7 @@ def check(
         f"{rep.drives} drive(s), {rep.segments} segment(s), {rep.blobs} bitstream(s) ({mib:.1f} MiB) verified{decoded}",
         soft_wrap=True,
     )
-    if len(rep.errors) == 1 and not repair:  # the one problem is the error line
-        raise EgovidError(rep.errors[0].problem, rep.errors[0].fix or f"run `egovid dashcam check {archive} --repair`")
-    if rep.errors:
-        fix = (
-            "what --repair could not rebuild must come from a backup of the archive, or its drives re-ingested"
-            if repair
-            else f"run `egovid dashcam check {archive} --repair`"
-        )
-        raise EgovidError(f"archive {archive} has {len(rep.errors)} problem(s) (listed above)", fix)
+    failure = rep.failure(repair)
+    if failure is not None:
+        raise failure
     console.print(f"archive {archive} is sound", soft_wrap=True)

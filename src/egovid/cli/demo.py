@@ -21,62 +21,11 @@ def demo(
     the same road, archives them (the second compressed against the first) and extracts the
     second back. voeval: evaluates three visual odometers on the controlled test scenes.
     """
-    import numpy as np
-
     from egovid.cli.validate import output_folder
-    from egovid.core.files import atomic_write_text
-    from egovid.core.motion.estimate import estimate_motion
-    from egovid.core.plots import plot_angles, plot_scores
-    from egovid.core.trajectory import read_motion_csv, write_motion_csv, write_tum
-    from egovid.fpv.perception.score import score_angles
-    from egovid.fpv.perception.ve2d import ve2d_video
-    from egovid.fpv.stabilize.pipeline import stabilize
-    from egovid.fpv.stabilize.report import write_report
-    from egovid.synth import motions
-    from egovid.synth.fpv import render_fpv
 
     output_folder(out, what="demo folder")
     out.mkdir(parents=True, exist_ok=True)
-    fpv = out / "fpv"
-    fpv.mkdir(exist_ok=True)
-    w, h, n = (640, 360, 120) if quick else (1280, 720, 240)
-    console.rule("[bold]fpv 1/4: synthetic shaky first-person clip (egovid synth fpv)")
-    angles = motions.running(n, 8.0, 2.0, 24.0, 1.5) + motions.jitter(n, (0.15, 0.15, 0.1))
-    clip = render_fpv(fpv / "shaky.mp4", angles, width=w, height=h, noise_std=2.0)
-    console.print(f"{clip.video} ({w}x{h}, {n} frames), ground truth {clip.motion_csv.name}")
-
-    console.rule("[bold]fpv 2/4: camera motion (egovid fpv motion)")
-    est = estimate_motion(clip.video)
-    write_motion_csv(fpv / "motion.csv", est.trajectory)
-    write_tum(fpv / "motion.tum", est.trajectory)
-    gt = read_motion_csv(clip.motion_csv).relative_to_first()
-    err = np.sqrt(np.mean((est.trajectory.euler() - gt.euler()) ** 2, axis=0))
-    plot_angles(fpv / "motion.png", est.trajectory.times, {"estimated": est.trajectory.euler(), "truth": gt.euler()})
-    fps = len(est.trajectory) / est.seconds["total"]
-    console.print(f"{fps:.0f} fps; RMS error yaw/pitch/roll {err[0]:.3f}° {err[1]:.3f}° {err[2]:.3f}°")
-
-    console.rule("[bold]fpv 3/4: viewing experience (egovid fpv score)")
-    intr = est.intrinsics
-    e = est.trajectory.euler()
-    results = {m: score_angles(e, 30.0, intr.hfov_deg, intr.vfov_deg, method=m) for m in ("ve", "sve")}
-    results["ve2d"] = ve2d_video(clip.video, intr)
-    atomic_write_text(fpv / "scores.json", json.dumps({m: r.to_dict() for m, r in results.items()}, indent=1))
-    plot_scores(fpv / "scores.png", results, "Viewing experience of the shaky clip")
-    console.print(
-        f"VE {results['ve'].score:.3f}  SVE {results['sve'].score:.3f}  2D-VE {results['ve2d'].score:.3f}"
-        " (1 = every frame can be followed by smooth pursuit)"
-    )
-
-    console.rule("[bold]fpv 4/4: FPMI-preserving stabilisation (egovid fpv stabilize)")
-    res = stabilize(clip.video, fpv / "stabilized.mp4", intrinsics=intr, motion=est.trajectory)
-    write_report(fpv / "stabilize-report.html", res, str(clip.video), intr, 30.0)
-    s = res.summary()
-    mb, ma = s["measured"]["before"], s["measured"]["after"]
-    console.print(
-        f"measured on the output: VE {mb['ve']:.3f} → {ma['ve']:.3f}, ITF {mb['itf_db']:.1f} → "
-        f"{ma['itf_db']:.1f} dB, first-person motion kept {100 * s['fpmi_retention_measured']:.0f} %, "
-        f"zoom {s['zoom']['mean']:.3f}"
-    )
+    _fpv(out / "fpv", quick)
 
     console.rule("[bold]dashcam: two drives, one archive (egovid dashcam)")
     _dashcam(out / "dashcam", quick)
@@ -110,12 +59,59 @@ def demo(
             console.print(f"  {p.relative_to(out)}")
 
 
+def _fpv(folder: Path, quick: bool) -> None:
+    """The fpv jobs on a generated shaky clip: synth fpv, fpv motion (against the ground truth),
+    fpv score and fpv stabilize, each through the function its command calls."""
+    import numpy as np
+
+    from egovid.core.plots import plot_angles
+    from egovid.core.trajectory import read_motion_csv
+    from egovid.fpv.motion import save_motion
+    from egovid.fpv.score import score_video
+    from egovid.fpv.stabilize.run import stabilize_video
+    from egovid.synth.fpv import MotionSpec, synth_fpv
+
+    folder.mkdir(exist_ok=True)
+    w, h, n = (640, 360, 120) if quick else (1280, 720, 240)
+    console.rule("[bold]fpv 1/4: synthetic shaky first-person clip (egovid synth fpv)")
+    spec = MotionSpec("running", n, 8.0, 2.0, 24.0, 1.5, jitter_deg=(0.15, 0.15, 0.1))
+    clip = synth_fpv(folder / "shaky.mp4", spec, width=w, height=h, noise_std=2.0)
+    console.print(f"{clip.video} ({w}x{h}, {n} frames), ground truth {clip.motion_csv.name}")
+
+    console.rule("[bold]fpv 2/4: camera motion (egovid fpv motion)")
+    cm = save_motion(clip.video, folder / "motion.csv")
+    est = cm.trajectory
+    gt = read_motion_csv(clip.motion_csv).relative_to_first()
+    err = np.sqrt(np.mean((est.euler() - gt.euler()) ** 2, axis=0))
+    plot_angles(folder / "motion.png", est.times, {"estimated": est.euler(), "truth": gt.euler()})
+    fps = len(est) / cm.seconds["total"]
+    console.print(f"{fps:.0f} fps; RMS error yaw/pitch/roll {err[0]:.3f}° {err[1]:.3f}° {err[2]:.3f}°")
+
+    console.rule("[bold]fpv 3/4: viewing experience (egovid fpv score)")
+    scores = score_video(clip.video, estimated=cm, json_out=folder / "scores.json", plot=folder / "scores.png")
+    r = scores.results
+    console.print(
+        f"VE {r['ve'].score:.3f}  SVE {r['sve'].score:.3f}  2D-VE {r['ve2d'].score:.3f}"
+        " (1 = every frame can be followed by smooth pursuit)"
+    )
+
+    console.rule("[bold]fpv 4/4: FPMI-preserving stabilisation (egovid fpv stabilize)")
+    res = stabilize_video(clip.video, folder / "stabilized.mp4", motion=est, report=folder / "stabilize-report.html")
+    s = res.summary()
+    mb, ma = s["measured"]["before"], s["measured"]["after"]
+    console.print(
+        f"measured on the output: VE {mb['ve']:.3f} → {ma['ve']:.3f}, ITF {mb['itf_db']:.1f} → "
+        f"{ma['itf_db']:.1f} dB, first-person motion kept {100 * s['fpmi_retention_measured']:.0f} %, "
+        f"zoom {s['zoom']['mean']:.3f}"
+    )
+
+
 def _dashcam(folder: Path, quick: bool) -> None:
     import shutil
 
     from egovid.dashcam.archive.store import Archive
     from egovid.dashcam.extract import extract_video
-    from egovid.dashcam.ingest import IngestOptions, ingest
+    from egovid.dashcam.ingest import IngestOptions, ingest_videos
     from egovid.dashcam.report import archive_report
     from egovid.synth.drive import DriveSpec, Light, render_drive
 
@@ -136,9 +132,10 @@ def _dashcam(folder: Path, quick: bool) -> None:
     shutil.rmtree(folder / "archive", ignore_errors=True)
     ar = Archive.create(folder / "archive")
     for video, gps, _ in (monday, tuesday):
-        rep = ingest(ar, video, gps, IngestOptions(measure_savings=True))
+        (rep,) = ingest_videos(ar, [video], gps=gps, options=IngestOptions(measure_savings=True)).reports
         for p in rep.pieces:
-            saving = f", {100 * p.saving:.1f} % smaller than standalone VP9" if p.saving is not None else ""
+            joint = p.ref_drive and p.saving is not None
+            saving = f", {100 * p.saving:.1f} % smaller than standalone AV1" if joint else ""
             console.print(
                 f"{rep.name}: {p.mode}{' against ' + p.ref_drive if p.ref_drive else ''}, "
                 f"{p.bytes / 1024:.0f} KiB{saving}"

@@ -6,15 +6,7 @@ from pathlib import Path
 
 import typer
 
-from egovid.cli.common import (
-    ALLOW_TRUNCATED,
-    all_or_nothing,
-    console,
-    parse_ints,
-    parse_size,
-    progress_bar,
-    staged_progress,
-)
+from egovid.cli.common import ALLOW_TRUNCATED, all_or_nothing, console, parse_ints, parse_size, staged_progress
 from egovid.cli.validate import CSV, HTML, JSON, PLOT, TUM, VIDEO_OUT, choice, input_file, number, outputs, video_input
 
 app = typer.Typer(
@@ -41,9 +33,9 @@ def source_option():
 
 def check_source(source: str) -> None:
     """Refuse an unknown ``--source`` before any work."""
-    from egovid.core.motion.source import SOURCES
+    from egovid.core.motion.source import REQUESTS
 
-    choice(source, "--source", SOURCES)
+    choice(source, "--source", REQUESTS)
 
 
 @app.command("motion")
@@ -81,16 +73,11 @@ def motion(
     by default, used instead; the JSON says which source was used and why.
     Angles are yaw-pitch-roll relative to the first frame (README: conventions).
     """
-    import json
-
-    from egovid.core.files import atomic_write_text
-    from egovid.core.motion.estimate import MotionOptions
-    from egovid.core.motion.source import camera_motion
-    from egovid.core.trajectory import write_motion_csv, write_tum
+    from egovid.fpv.motion import MotionOptions, save_motion, sidecar_paths
 
     video_input(video, allow_truncated=allow_truncated)
-    json_out = json_out or out.parent / (out.stem + ".json")
-    tum = tum or out.parent / (out.stem + ".tum")
+    default_json, default_tum = sidecar_paths(out)
+    json_out, tum = json_out or default_json, tum or default_tum
     outputs(
         [video],
         (out, CSV, "motion CSV"),
@@ -102,11 +89,10 @@ def motion(
     check_source(source)
     opts = MotionOptions(lags=parse_ints(lags, "--lags"), features=features, work_width=work_width)
     with staged_progress() as cb:
-        cm = camera_motion(video, source, focal=focal, hfov=hfov, options=opts, progress=cb)
-    write_motion_csv(out, cm.trajectory, cm.confidence)
-    write_tum(tum, cm.trajectory)
-    doc = {"input": str(video), **cm.to_dict()}
-    atomic_write_text(json_out, json.dumps(doc, indent=1))
+        cm = save_motion(
+            video, out, json_out=json_out, tum=tum, plot=plot, source=source, focal=focal, hfov=hfov, options=opts,
+            progress=cb,
+        )  # fmt: skip
     n = len(cm.trajectory)
     cam = cm.camera.intrinsics
     console.print(f"source       {cm.source} ({cm.reason})")
@@ -128,19 +114,6 @@ def motion(
     console.print(f"TUM          {tum}")
     console.print(f"JSON         {json_out}")
     if plot is not None:
-        from egovid.core.motion import gyro as gyro_mod
-        from egovid.core.plots import plot_angles
-        from egovid.core.trajectory import Trajectory
-
-        curves = {cm.source: cm.trajectory.euler()}
-        if cm.vision is not None and cm.source != "vision":
-            curves["vision"] = cm.vision.trajectory.euler()
-        if cm.sync is not None and cm.vision is not None and cm.source != "gyro" and cm.telemetry.has_gyro:
-            R = gyro_mod.frame_rotations(
-                gyro_mod.integrate(cm.telemetry.imu, bias=cm.sync.bias), cm.sync, cm.trajectory.times
-            )
-            curves["gyro"] = Trajectory(cm.trajectory.times, R).euler()
-        plot_angles(plot, cm.trajectory.times, curves, f"Camera rotation of {video.name}")
         console.print(f"plot         {plot}")
 
 
@@ -173,23 +146,9 @@ def score(
     instead of the 3D camera motion. Scores are per window of 10 frames (VE/SVE) or 30 frames
     (2D-VE); the overall score is the RMS of the per-window minimum over yaw, pitch and roll.
     """
-    import json
+    from egovid.fpv.score import check_request, score_video
 
-    import numpy as np
-
-    from egovid.core.camera.intrinsics import resolve_intrinsics
-    from egovid.core.errors import EgovidError
-    from egovid.core.files import atomic_write_text
-    from egovid.core.trajectory import read_motion_csv, write_motion_csv
-    from egovid.fpv.perception.model import ViewingModel
-    from egovid.fpv.perception.score import score_angles
-
-    methods = ("ve", "sve", "ve2d") if method == "all" else (method,)
-    for m in methods:
-        if m not in ("ve", "sve", "ve2d"):
-            raise EgovidError(f"unknown method {m!r}", "choose ve, sve, ve2d or all")
-    if (video is None) == (motion is None):
-        raise EgovidError("give either a VIDEO or --motion CSV", "e.g. `egovid fpv score clip.mp4`")
+    check_request(video, motion, method)
     choice(sve_variant, "--sve-variant", ("coverage", "thesis"))
     check_source(source)
     number(fps, "--fps", lo=0, lo_open=True, hi=1000)
@@ -197,67 +156,29 @@ def score(
     number(mar, "--mar", lo=0, lo_open=True, hi=10, unit="degrees")
     number(bias, "--bias", lo=0, hi=10, unit="degrees")
     input_file(motion, "motion CSV")
-    info = video_input(video, allow_truncated=allow_truncated) if video is not None else None
+    if video is not None:
+        video_input(video, allow_truncated=allow_truncated)
     outputs(
         [video, motion],
         (json_out, JSON, "JSON"),
         (plot, PLOT, "plot"),
         (save_motion if video else None, CSV, "motion CSV"),
     )
-    if motion is not None and "ve2d" in methods:
-        if method != "all":
-            raise EgovidError("2D-VE needs the video, not a motion CSV", "pass the VIDEO instead of --motion")
-        methods = ("ve", "sve")
-    results: dict = {}
-    traj = None
-    camera = None
-    if video is not None:
-        from egovid.core.camera.intrinsics import resolve_camera
-
-        camera = resolve_camera(video, focal, hfov)
-        intr = camera.intrinsics
-        rate = info.fps
-    else:
-        w, h = parse_size(size) if size else (1920, 1080)
-        intr = resolve_intrinsics(w, h, focal, hfov)
-        traj = read_motion_csv(motion)
-        if fps is None:
-            dt = np.diff(traj.times)
-            if len(dt) == 0 or not np.all(dt > 0):
-                raise EgovidError(f"{motion} has no increasing time column", "pass --fps")
-            fps = float(1.0 / np.median(dt))
-        rate = fps
-    model3d = ViewingModel(d_over_f=d_over_f, mar_deg=mar, bias_deg=0.0183 if bias is None else bias)
-    model2d = ViewingModel.model_2d().with_(
-        d_over_f=d_over_f, mar_deg=mar, **({} if bias is None else {"bias_deg": bias})
-    )
-    if traj is None and any(m in ("ve", "sve") for m in methods):
-        from egovid.cli.common import staged_progress
-        from egovid.core.motion.source import camera_motion
-
-        with staged_progress() as cb:
-            cm = camera_motion(video, source, focal=focal, hfov=hfov, progress=cb)
-        traj, camera, intr = cm.trajectory, cm.camera, cm.camera.intrinsics
-        console.print(f"motion from {cm.source} ({cm.reason}); intrinsics: {camera.source}")
-        if save_motion is not None:
-            write_motion_csv(save_motion, traj, cm.confidence)
-    for m in methods:
-        if m == "ve2d":
-            from egovid.fpv.perception.ve2d import ve2d_video
-
-            with progress_bar("2D-VE", info.frame_count) as update:
-                results[m] = ve2d_video(video, intr, model2d, progress=update)
-        else:
-            results[m] = score_angles(
-                traj.euler(), rate, intr.hfov_deg, intr.vfov_deg, model=model3d, method=m, sve_variant=sve_variant
-            )
+    with staged_progress() as cb:
+        rep = score_video(
+            video, motion=motion, method=method, focal=focal, hfov=hfov, size=parse_size(size) if size else None,
+            fps=fps, d_over_f=d_over_f, bias=bias, mar=mar, sve_variant=sve_variant, source=source,
+            json_out=json_out, plot=plot, save_motion=save_motion, progress=cb,
+        )  # fmt: skip
+    if rep.motion is not None:
+        console.print(f"motion from {rep.motion.source} ({rep.motion.reason}); intrinsics: {rep.intrinsics_source}")
     from rich.table import Table
 
-    table = Table(title=f"Viewing experience of {(video or motion).name}")
+    table = Table(title=f"Viewing experience of {rep.input.name}")
     table.add_column("method")
     for col in ("overall", "yaw", "pitch", "roll"):
         table.add_column(col, justify="right")
-    for m, r in results.items():
+    for m, r in rep.results.items():
         if m == "ve2d":
             table.add_row("2D-VE", f"{r.score:.3f}", "", "", "")
         else:
@@ -265,24 +186,8 @@ def score(
     console.print(table)
     console.print("1 = a viewer can pursue targets in every frame; 0 = never.")
     if json_out is not None:
-        doc = {
-            "input": str(video or motion),
-            "intrinsics": {
-                "width": intr.width,
-                "height": intr.height,
-                "focal_px": intr.focal,
-                "hfov_deg": intr.hfov_deg,
-                "vfov_deg": intr.vfov_deg,
-                "source": camera.source if camera is not None else ("flag" if focal or hfov else "default"),
-            },
-            "results": {m: r.to_dict() for m, r in results.items()},
-        }
-        atomic_write_text(json_out, json.dumps(doc, indent=1))
         console.print(f"JSON  {json_out}")
     if plot is not None:
-        from egovid.core.plots import plot_scores
-
-        plot_scores(plot, results, f"Viewing experience of {(video or motion).name}")
         console.print(f"plot  {plot}")
 
 
@@ -329,66 +234,26 @@ def stabilize_cmd(
     into what a zoom of at most --max-zoom can cover, with the zoom itself changing smoothly over
     time. Unless --no-measure, the output is decoded and measured again, next to the plan.
     """
-    import json
+    from egovid.fpv.stabilize.run import check_options, saved_motion_paths, stabilize_video
 
-    from egovid.core.errors import EgovidError
-    from egovid.core.files import atomic_write_text
-    from egovid.core.trajectory import Trajectory, read_motion_csv, write_motion_csv
-    from egovid.fpv.stabilize.optimize import OptimizeOptions
-    from egovid.fpv.stabilize.pipeline import stabilize
-    from egovid.fpv.stabilize.render import BORDERS
-
-    if borders not in BORDERS:
-        raise EgovidError(f"unknown border mode {borders!r}", f"choose one of {', '.join(BORDERS)}")
-    if method not in ("ve", "sve"):
-        raise EgovidError(f"unknown method {method!r}", "choose ve or sve")
-    if not (0.0 <= strength <= 1.0):
-        raise EgovidError(f"strength {strength} is outside [0, 1]", "use e.g. --strength 0.7")
+    check_options(strength, borders, method)
     number(max_zoom, "--max-zoom", lo=1.0, hi=4.0)
     check_source(source)
-    info = video_input(src, allow_truncated=allow_truncated)
+    video_input(src, allow_truncated=allow_truncated)
     input_file(motion, "motion CSV")
-    pre = (save_motion.parent / (save_motion.name + s) for s in (".input.csv", ".output.csv")) if save_motion else ()
     outputs(
         [src, motion],
         (out, VIDEO_OUT, "output video"),
         (report, HTML, "report"),
         (json_out, JSON, "JSON"),
-        *((p, CSV, "motion CSV") for p in pre),
+        *((p, CSV, "motion CSV") for p in (saved_motion_paths(save_motion) if save_motion else ())),
     )
-    from egovid.core.camera.intrinsics import resolve_camera
-
-    intr = resolve_camera(src, focal, hfov).intrinsics
-    traj = read_motion_csv(motion) if motion is not None else None
-    if traj is not None and len(traj) != info.frame_count:
-        from egovid.core.video import count_frames
-
-        n = count_frames(src)
-        if len(traj) != n:
-            raise EgovidError(
-                f"motion {motion} has {len(traj)} frames but {src} has {n}", "estimate the motion of this video again"
-            )
     with staged_progress() as cb:
-        if traj is None:
-            from egovid.core.motion.source import camera_motion
-
-            cm = camera_motion(src, source, focal=focal, hfov=hfov, progress=cb)
-            traj, intr = cm.trajectory, cm.camera.intrinsics
-        res = stabilize(
-            src,
-            out,
-            intrinsics=intr,
-            motion=traj,
-            strength=strength,
-            borders=borders,
-            max_zoom=max_zoom,
-            keep_roll=keep_roll,
-            method=method,
-            opts=OptimizeOptions(anchor_threshold=anchor_threshold, method=method),
-            crf=crf,
-            measure=measure,
-            progress=cb,
-        )
+        res = stabilize_video(
+            src, out, source=source, focal=focal, hfov=hfov, motion=motion, strength=strength, borders=borders,
+            max_zoom=max_zoom, keep_roll=keep_roll, method=method, anchor_threshold=anchor_threshold, crf=crf,
+            measure=measure, save_motion=save_motion, json_out=json_out, report=report, progress=cb,
+        )  # fmt: skip
     s = res.summary()
     pb, pa = s["planned"]["before"], s["planned"]["after"]
     console.print(
@@ -412,18 +277,7 @@ def stabilize_cmd(
     for note in s["notes"]:
         console.print(f"note    {note}")
     console.print(f"video   {out}")
-    if save_motion is not None:
-        write_motion_csv(
-            save_motion.with_name(save_motion.name + ".input.csv"), Trajectory.from_euler(res.times, res.original)
-        )
-        write_motion_csv(
-            save_motion.with_name(save_motion.name + ".output.csv"), Trajectory.from_euler(res.times, res.path)
-        )
     if json_out is not None:
-        atomic_write_text(json_out, json.dumps(s, indent=1, default=float))
         console.print(f"JSON    {json_out}")
     if report is not None:
-        from egovid.fpv.stabilize.report import write_report
-
-        write_report(report, res, str(src), intr, info.fps)
         console.print(f"report  {report}")

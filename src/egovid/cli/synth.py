@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import typer
 
 from egovid.cli.common import all_or_nothing, console, parse_size, progress_bar
@@ -40,12 +39,9 @@ def synth_fpv(
     Writes OUT plus OUT-stem.gt.csv (frame,time,yaw,pitch,roll in degrees) and OUT-stem.gt.tum.
     Example: egovid synth fpv shaky.mp4 --motion running --yaw-amp 10 --pitch-amp 2.5
     """
-    from egovid.core.camera.intrinsics import resolve_intrinsics
-    from egovid.synth import motions
-    from egovid.synth.fpv import ground_truth_paths, render_fpv
-    from egovid.synth.photos import ALL
+    from egovid.synth.fpv import ALL, MOTIONS, MotionSpec, ground_truth_paths, synth_fpv
 
-    choice(motion, "--motion", motions.MOTIONS)
+    choice(motion, "--motion", MOTIONS)
     choice(scene, "--scene", ("panorama", *ALL))
     number(yaw_amp, "--yaw-amp", lo=-180, hi=180, unit="degrees")
     number(pitch_amp, "--pitch-amp", lo=-90, hi=90, unit="degrees")
@@ -58,34 +54,12 @@ def synth_fpv(
         *zip(ground_truth_paths(out), (CSV, TUM), ("ground truth", "TUM file"), strict=True),
     )
     w, h = parse_size(size)
-    intr = resolve_intrinsics(w, h, focal, hfov)
-    if motion == "running":
-        angles = motions.running(frames, yaw_amp, pitch_amp, period, roll_amp)
-    elif motion == "pan":
-        angles = motions.pan(frames, pan_deg)
-        angles[:, 2] += roll_amp * np.sin(2 * np.pi * np.arange(frames) / period)
-    elif motion == "random-walk":
-        angles = motions.random_walk(frames, seed=seed)
-    elif motion == "still":
-        angles = np.zeros((frames, 3))
-    else:
-        raise EgovidError(f"unknown motion {motion!r}", f"choose one of {', '.join(motions.MOTIONS)}")
-    if jitter_deg > 0:
-        angles = angles + motions.jitter(frames, (jitter_deg, jitter_deg, jitter_deg), seed=seed)
+    spec = MotionSpec(motion, frames, yaw_amp, pitch_amp, period, roll_amp, pan_deg, jitter_deg, seed)
     with progress_bar("rendering", frames) as update:
-        res = render_fpv(
-            out,
-            angles,
-            width=w,
-            height=h,
-            fps=fps,
-            intrinsics=intr,
-            scene=scene,
-            noise_std=noise,
-            forward_speed=forward,
-            seed=seed,
-            progress=lambda k: update(k),
-        )
+        res = synth_fpv(
+            out, spec, width=w, height=h, fps=fps, focal=focal, hfov=hfov, scene=scene, noise_std=noise,
+            forward_speed=forward, seed=seed, progress=lambda k: update(k),
+        )  # fmt: skip
     console.print(f"video        {res.video}")
     console.print(f"ground truth {res.motion_csv}  {res.tum}")
 
@@ -114,10 +88,8 @@ def synth_drive(
     Writes OUT, OUT-stem.gpx (or .nmea / .gps.csv) and OUT-stem.truth.csv (frame positions).
     Example: egovid synth drive monday.mp4 --light morning --stop 120:3 --seed 1
     """
-    import datetime as dt
-
-    from egovid.core.errors import EgovidError
-    from egovid.synth.drive import DriveSpec, Light, render_drive
+    from egovid.core.times import parse_iso
+    from egovid.synth.drive import DriveSpec, Light, drive_files, render_drive, route_legs
 
     choice(gps, "--gps", ("gpx", "nmea", "csv"))
     choice(route, "--route", ("main", "side"))
@@ -125,44 +97,19 @@ def synth_drive(
     number(start_m, "--from", lo=0, hi=10_000, unit="m")
     number(end_m, "--to", lo=0, hi=10_000, unit="m")
     number(lane_offset, "--lane-offset", lo=-5, hi=5, unit="m")
-    gps_path = out.parent / (out.stem + {"gpx": ".gpx", "nmea": ".nmea", "csv": ".gps.csv"}[gps])
+    gps_path, truth_path = drive_files(out, gps)
     outputs(
         [],
         (out, ".mp4 .mkv .mov", "video"),
         (gps_path, "", "GPS track"),
-        (out.parent / (out.stem + ".truth.csv"), CSV, "truth"),
+        (truth_path, CSV, "truth"),
     )
     w, h = parse_size(size)
-    if route == "main":
-        legs = [("main", start_m, end_m)]
-    elif route == "side":
-        legs = [("main", start_m, 445.0), ("side", 5.0, max(end_m, 50.0))]
-    else:
-        raise EgovidError(f"unknown route {route!r}", "choose main or side")
-    stops = []
-    for s in stop:
-        try:
-            d, wait = (float(x) for x in s.split(":"))
-        except ValueError:
-            raise EgovidError(f"--stop {s!r} is not DISTANCE:SECONDS", "write e.g. --stop 120:3") from None
-        stops.append(
-            (
-                number(d, "--stop distance", lo=0, hi=10_000, unit="m"),
-                number(wait, "--stop wait", lo=0, hi=3600, unit="s"),
-            )
-        )
-    change = None
-    if lane_change:
-        try:
-            a, b = (float(x) for x in lane_change.split(":"))
-        except ValueError:
-            raise EgovidError(f"--lane-change {lane_change!r} is not A:B", "write e.g. --lane-change 80:120") from None
-        change = (
-            number(a, "--lane-change start", lo=0, hi=10_000, unit="m"),
-            number(b, "--lane-change end", lo=a, hi=10_000, unit="m"),
-        )
+    legs = route_legs(route, start_m, end_m)
+    stops = _stops(stop)
+    change = _lane_change(lane_change) if lane_change else None
     try:
-        t0 = dt.datetime.fromisoformat(start.replace("Z", "+00:00"))
+        t0 = parse_iso(start)
     except ValueError:
         raise EgovidError(f"--start {start!r} is not ISO 8601", "write e.g. 2026-05-04T08:00:00Z") from None
     spec = DriveSpec(
@@ -174,10 +121,39 @@ def synth_drive(
         light=light_preset,
         vehicles=vehicles,
         seed=seed,
-        start_time=t0 if t0.tzinfo else t0.replace(tzinfo=dt.UTC),
+        start_time=t0,
     )
     with progress_bar("rendering", None) as update:
         video, track, truth = render_drive(
             spec, out, width=w, height=h, fps=fps, gps_format=gps, progress=lambda k, n: update(k, n)
         )
-    console.print(f"video {video} ({len(truth.times)} frames)\nGPS   {track}\ntruth {out.with_suffix('.truth.csv')}")
+    console.print(f"video {video} ({len(truth.times)} frames)\nGPS   {track}\ntruth {truth_path}")
+
+
+def _stops(texts: list[str]) -> list[tuple[float, float]]:
+    """``--stop DISTANCE:SECONDS`` options as (metres from the start, seconds of wait)."""
+    stops = []
+    for s in texts:
+        try:
+            d, wait = (float(x) for x in s.split(":"))
+        except ValueError:
+            raise EgovidError(f"--stop {s!r} is not DISTANCE:SECONDS", "write e.g. --stop 120:3") from None
+        stops.append(
+            (
+                number(d, "--stop distance", lo=0, hi=10_000, unit="m"),
+                number(wait, "--stop wait", lo=0, hi=3600, unit="s"),
+            )
+        )
+    return stops
+
+
+def _lane_change(text: str) -> tuple[float, float]:
+    """``--lane-change A:B`` as (start, end) metres from the start of the drive."""
+    try:
+        a, b = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise EgovidError(f"--lane-change {text!r} is not A:B", "write e.g. --lane-change 80:120") from None
+    return (
+        number(a, "--lane-change start", lo=0, hi=10_000, unit="m"),
+        number(b, "--lane-change end", lo=a, hi=10_000, unit="m"),
+    )

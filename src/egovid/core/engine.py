@@ -171,72 +171,92 @@ def run_tasks(
         raise ValueError("one key per item")
     waits = {k: {str(d) for d in (after or {}).get(k, ())} & set(keys) for k in keys}
     if config.in_process and client is None:
-        done: set[str] = set()
-        todo = list(zip(keys, items, strict=True))
-        while todo:
-            i = next((i for i, (k, _) in enumerate(todo) if waits[k] <= done), 0)  # 0: a cycle, break it
-            key, item = todo.pop(i)
-            yield _run_here(fn, key, item, config.retries)
-            done.add(key)
+        yield from _run_in_order(fn, keys, items, waits, config.retries)
         return
     with contextlib.ExitStack() as stack:
         if client is None:
             client = stack.enter_context(open_client(config))
-        token = uuid.uuid4().hex[:8]
-        futures: dict = {}
-        pending = dict(zip(keys, items, strict=True))
-        finished: set[str] = set()
-        running: list = []  # submitted, not yet reported
-        wakeups: queue.SimpleQueue = queue.SimpleQueue()
+        yield from _ClusterRun(client, fn, dict(zip(keys, items, strict=True)), waits, name, config.retries).outcomes()
 
-        def submit_ready() -> list:
-            ready = [k for k in pending if waits[k] <= finished]
-            if not ready and pending and not running:
-                ready = [next(iter(pending))]  # a cycle in ``after`` (nothing else in flight): break it
-            out = []
-            for key in ready:
-                item = pending.pop(key)
-                fut = client.submit(
-                    functools.partial(_on_worker, fn),
-                    item,
-                    key=f"{name}-{key}-{token}",
-                    pure=False,
-                    retries=config.retries,
-                )
-                futures[fut] = (key, item)
-                out.append(fut)
-            return out
 
-        # Not ``distributed.as_completed`` nor ``distributed.wait``: both work through Dask's
-        # *default* client (the last Client created in this process), which need not be ``client``.
-        # as_completed tracked our futures on that client's event loop; once that other client had
-        # closed (a caller's, a test's), completions were never seen and the run hung. A future's
-        # done-callback runs on its own client's loop; it only wakes this loop, which then looks at
-        # every running future's state (again at least every _POLL_S seconds, a missed wake-up
-        # costs no more than that).
-        def track(new: list) -> None:
-            for fut in new:
-                running.append(fut)
-                fut.add_done_callback(wakeups.put)
+def _run_in_order(
+    fn: Callable[[Any], Any], keys: list[str], items: list, waits: dict[str, set[str]], retries: int
+) -> Iterator[TaskOutcome]:
+    """The tasks in this process, one after the other, each once the tasks it waits for are done."""
+    done: set[str] = set()
+    todo = list(zip(keys, items, strict=True))
+    while todo:
+        i = next((i for i, (k, _) in enumerate(todo) if waits[k] <= done), 0)  # 0: a cycle, break it
+        key, item = todo.pop(i)
+        yield _run_here(fn, key, item, retries)
+        done.add(key)
 
-        track(submit_ready())
+
+class _ClusterRun:
+    """The tasks of one :func:`run_tasks` call on a Dask client: each handed to the cluster once the
+    tasks it waits for have finished, reported as it finishes."""
+
+    def __init__(
+        self, client: Any, fn: Callable[[Any], Any], pending: dict, waits: dict[str, set[str]], name: str, retries: int
+    ) -> None:
+        self.client, self.fn, self.pending, self.waits = client, fn, pending, waits
+        self.name, self.retries = name, retries
+        self.token = uuid.uuid4().hex[:8]
+        self.futures: dict = {}
+        self.finished: set[str] = set()
+        self.running: list = []  # submitted, not yet reported
+        self.wakeups: queue.SimpleQueue = queue.SimpleQueue()
+
+    def _submit_ready(self) -> list:
+        ready = [k for k in self.pending if self.waits[k] <= self.finished]
+        if not ready and self.pending and not self.running:
+            ready = [next(iter(self.pending))]  # a cycle in ``after`` (nothing else in flight): break it
+        out = []
+        for key in ready:
+            item = self.pending.pop(key)
+            fut = self.client.submit(
+                functools.partial(_on_worker, self.fn),
+                item,
+                key=f"{self.name}-{key}-{self.token}",
+                pure=False,
+                retries=self.retries,
+            )
+            self.futures[fut] = (key, item)
+            out.append(fut)
+        return out
+
+    # Not ``distributed.as_completed`` nor ``distributed.wait``: both work through Dask's
+    # *default* client (the last Client created in this process), which need not be ``client``.
+    # as_completed tracked our futures on that client's event loop; once that other client had
+    # closed (a caller's, a test's), completions were never seen and the run hung. A future's
+    # done-callback runs on its own client's loop; it only wakes this loop, which then looks at
+    # every running future's state (again at least every _POLL_S seconds, a missed wake-up
+    # costs no more than that).
+    def _track(self, new: list) -> None:
+        for fut in new:
+            self.running.append(fut)
+            fut.add_done_callback(self.wakeups.put)
+
+    def outcomes(self) -> Iterator[TaskOutcome]:
+        """Every task's outcome as it finishes; unfinished tasks are cancelled when left early."""
+        self._track(self._submit_ready())
         try:
-            while running:
+            while self.running:
                 with contextlib.suppress(queue.Empty):
-                    wakeups.get(timeout=_POLL_S)
-                for fut in [f for f in running if f.done()]:
-                    running.remove(fut)
-                    key, item = futures[fut]
+                    self.wakeups.get(timeout=_POLL_S)
+                for fut in [f for f in self.running if f.done()]:
+                    self.running.remove(fut)
+                    key, item = self.futures[fut]
                     try:
                         outcome = TaskOutcome(key, item, value=fut.result())
                     except Exception as exc:  # the task failed for good, its worker kept dying, cancelled
                         outcome = TaskOutcome(key, item, error=exc)
-                    finished.add(key)
+                    self.finished.add(key)
                     fut.release()
-                    track(submit_ready())  # before yielding: they run while the caller looks
+                    self._track(self._submit_ready())  # before yielding: they run while the caller looks
                     yield outcome
         finally:
-            for fut in futures:
+            for fut in self.futures:
                 if not fut.done():
                     fut.cancel()
 
@@ -325,41 +345,38 @@ def spawn_cluster(
     try:
         spawn([dask, "scheduler", *local, "--port", "0", "--scheduler-file", str(sched_file)], "scheduler.log")
         deadline = time.monotonic() + timeout
-        while not (sched_file.exists() and sched_file.stat().st_size > 0):
-            if time.monotonic() > deadline or procs[0].poll() is not None:
-                raise TimeoutError(
-                    f"the Dask scheduler did not start within {timeout:.0f} s (see {folder / 'scheduler.log'})"
-                )
-            time.sleep(0.2)
-        address = json.loads(sched_file.read_text())["address"]
-        spawn(
-            [
-                dask,
-                "worker",
-                address,
-                *local,
-                "--nworkers",
-                str(workers),
-                "--nthreads",
-                "1",
-                "--local-directory",
-                str(folder / "workers"),
-            ],
-            "workers.log",
-        )
+        address = _scheduler_address(sched_file, procs[0], deadline, timeout)
+        worker_args = ["--nworkers", str(workers), "--nthreads", "1", "--local-directory", str(folder / "workers")]
+        spawn([dask, "worker", address, *local, *worker_args], "workers.log")
         from distributed import Client
 
         with Client(address, timeout=60) as client:
             client.wait_for_workers(workers, timeout=max(1.0, deadline - time.monotonic()))
         yield address
     finally:
-        for p in reversed(procs):
+        _stop(procs)
+
+
+def _scheduler_address(sched_file: Path, scheduler: subprocess.Popen, deadline: float, timeout: float) -> str:
+    """The address a starting ``dask scheduler`` writes to ``sched_file``, once it has (polled)."""
+    while not (sched_file.exists() and sched_file.stat().st_size > 0):
+        if time.monotonic() > deadline or scheduler.poll() is not None:
+            raise TimeoutError(
+                f"the Dask scheduler did not start within {timeout:.0f} s (see {sched_file.parent / 'scheduler.log'})"
+            )
+        time.sleep(0.2)
+    return json.loads(sched_file.read_text())["address"]
+
+
+def _stop(procs: list[subprocess.Popen]) -> None:
+    """Stop the process groups of ``procs``, last started first: SIGTERM, then SIGKILL after 30 s."""
+    for p in reversed(procs):
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(p.pid, signal.SIGTERM)
+    for p in reversed(procs):
+        try:
+            p.wait(timeout=30)
+        except subprocess.TimeoutExpired:
             with contextlib.suppress(ProcessLookupError):
-                os.killpg(p.pid, signal.SIGTERM)
-        for p in reversed(procs):
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(p.pid, signal.SIGKILL)
-                p.wait()
+                os.killpg(p.pid, signal.SIGKILL)
+            p.wait()

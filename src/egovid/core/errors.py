@@ -40,12 +40,6 @@ class EgovidError(Exception):
         return text
 
 
-def require(condition: bool, problem: str, fix: str | None = None) -> None:
-    """Raise :class:`EgovidError` unless ``condition`` holds."""
-    if not condition:
-        raise EgovidError(problem, fix)
-
-
 _FREE_SPACE = "free some space or write to another disk"
 _OS_ERRORS: dict[int, tuple[str, str]] = {
     errno.ENOSPC: ("no space left on the device{at}", _FREE_SPACE),

@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from egovid.core.errors import EgovidError
 from egovid.core.files import atomic_write_text
-from egovid.core.rotations import euler_from_matrix, matrix_from_euler
+from egovid.core.rotations import euler_from_matrix, matrix_from_euler, project_to_so3
 
 MOTION_COLUMNS = ("frame", "time", "yaw", "pitch", "roll")
 
@@ -172,8 +172,6 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
 
 def read_kitti(path: str | os.PathLike, fps: float = 30.0) -> Trajectory:
     """Read a KITTI pose file (3x4 row-major per line); rotations are re-orthonormalised."""
-    from egovid.core.rotations import project_to_so3
-
     arr = _numeric_rows(Path(path), 12, "KITTI")
     M = arr.reshape(-1, 3, 4)
     return Trajectory(np.arange(len(M)) / fps, project_to_so3(M[:, :, :3]), M[:, :, 3])

@@ -1,5 +1,6 @@
 """Getting drives back out of an archive: decoding segments (a whole drive or a stretch), the
-baselines a joint segment is decoded against, digests, and writing a lossless video.
+baselines a joint segment is decoded against, digests, and writing a lossless video
+(``egovid dashcam extract``: :func:`plan_extract`, then :func:`extract_drive`).
 
 Everything here reads through a :class:`FrameSource` — the archive itself, or the snapshot of the
 reference drives an ingest task carries to another process — so the encoder's baselines and every
@@ -17,17 +18,22 @@ import queue
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, TypeVar
 
 import numpy as np
 
 from egovid.core.errors import EgovidError
-from egovid.core.video import VideoWriter
+from egovid.core.video import ColourTags, VideoWriter
 from egovid.dashcam.archive.blobs import BlobStore
 from egovid.dashcam.archive.catalogue import Drive, Segment
+from egovid.dashcam.archive.fleetstore import FleetStore, live_drive
+from egovid.dashcam.archive.references import check_chain
+from egovid.dashcam.archive.store import Archive
+from egovid.dashcam.codec import registry, vpx
 from egovid.dashcam.codec import segment as codec
-from egovid.dashcam.codec import vpx
+from egovid.dashcam.codec.streams import StreamCopier
 
 DAMAGED = "the archive or one of its reference drives is damaged"
 
@@ -80,10 +86,10 @@ def segment_frames(source: FrameSource, seg: Segment, start: int = 0, stop: int 
         r0 = start // refresh
         r1 = min(len(offsets) - 1, -(-stop // refresh))
         packets = _ranged_packets(source.blobs, seg.blob, lay, offsets, r0, r1)
-        frames = codec.decode_runs(lay, packets, r0, baselines(source, seg, r0 * refresh), start)
+        frames = registry.decode_runs(lay, packets, r0, baselines(source, seg, r0 * refresh), start)
     else:
         blob = source.blobs.get(seg.blob)
-        frames = codec.decode_segment(blob, baselines(source, seg, codec.run_start(blob, start)), start)
+        frames = registry.decode_segment(blob, baselines(source, seg, codec.run_start(blob, start)), start)
     return itertools.islice(frames, stop - start)
 
 
@@ -318,12 +324,11 @@ def extract_video(
 
     ``frames``: (first, end) frame numbers of the drive to write (end exclusive; default all).
     Decoding starts at the random-access run holding ``first``, in this drive and in the
-    drives it refers to. ``colour``: the source's colour tags (io.video.ColourTags) to tag the
-    output with; ``streams``: the drive's archived audio and telemetry (dashcam/streams.py), copied
-    for the same stretch (``audio_codec``: re-encode the audio, e.g. ``aac``); ``crf``: an MP4 for
-    sharing (H.264 at this quality) instead of a lossless one."""
-    from egovid.dashcam.codec.streams import StreamCopier
-
+    drives it refers to. ``colour``: the source's colour tags (:class:`~egovid.core.video.ColourTags`)
+    to tag the output with; ``streams``: the drive's archived audio and telemetry
+    (:mod:`egovid.dashcam.codec.streams`), copied for the same stretch (``audio_codec``: re-encode
+    the audio, e.g. ``aac``); ``crf``: an MP4 for sharing (H.264 at this quality) instead of a
+    lossless one. ``progress(done, total)``: frames written."""
     out = Path(out)
     ext = out.suffix.lower()
     if ext not in (".mkv", ".mp4"):
@@ -334,8 +339,6 @@ def extract_video(
             f"frames {f0}-{f1 - 1} are not in drive {drive.name} (frames 0-{drive.frames - 1})",
             "choose a range inside the drive (see `egovid dashcam show`)",
         )
-    from egovid.dashcam.check import check_chain
-
     check_chain(source, drive.id)
     codec_name, options = ("ffv1", None) if ext == ".mkv" else ("libx264", {"qp": "0", "preset": "ultrafast"})
     if crf is not None and ext == ".mp4":
@@ -367,3 +370,51 @@ def extract_video(
             copier.write()
             copier.close()
     return out
+
+
+def archived_extras(archive: Archive, drive: Drive) -> dict:
+    """What the fleet tables add to a drive's frames: the source's colour tags and the archived
+    audio and telemetry (keyword arguments ``colour`` and ``streams`` of :func:`extract_video`;
+    empty for an archive without fleet tables, which are not created here)."""
+    cat = archive.catalogue
+    if cat.get_meta("fleet_schema") is None:
+        return {}
+    m = FleetStore(cat).meta(drive.id)
+    return {
+        "colour": ColourTags(**m.colour) if m.colour else None,
+        "streams": archive.blobs.get(m.streams_blob) if m.streams_blob else None,
+    }
+
+
+@dataclass(frozen=True)
+class ExtractJob:
+    """What ``extract`` writes: a live drive and its frames [frame_start, frame_end)."""
+
+    drive: Drive
+    frame_start: int
+    frame_end: int
+
+
+def plan_extract(archive: Archive, key: str, start: float | None = None, duration: float | None = None) -> ExtractJob:
+    """The live drive ``key`` (name or id) and its frames from ``start`` seconds into it (default 0)
+    for ``duration`` seconds (default to the end; at least one frame), checked before any work:
+    :class:`EgovidError` for an unknown drive or a start past its end."""
+    drive = live_drive(archive.catalogue, key, archive.root)
+    f0 = round((start or 0.0) * drive.fps)
+    f1 = drive.frames if duration is None else min(drive.frames, f0 + max(1, round(duration * drive.fps)))
+    if f0 >= drive.frames:
+        raise EgovidError(
+            f"--start {start} s is past the end of drive {drive.name} ({drive.frames / drive.fps:.1f} s)",
+            "choose an earlier start",
+        )
+    return ExtractJob(drive, f0, f1)
+
+
+def extract_drive(
+    archive: Archive, job: ExtractJob, out: str | os.PathLike, progress: Callable[[int, int], None] | None = None
+) -> Path:
+    """``egovid dashcam extract``: write the frames of ``job`` (:func:`plan_extract`) as a video with
+    the drive's colour tags, audio and telemetry (:func:`archived_extras`), checked against the
+    encoder's reconstruction (:func:`extract_video`). ``progress(done, total)``: frames written."""
+    frames = (job.frame_start, job.frame_end)
+    return extract_video(archive, job.drive, out, progress, frames, **archived_extras(archive, job.drive))

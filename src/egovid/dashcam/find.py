@@ -18,6 +18,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.dashcam.archive.fleetstore import FleetStore
+from egovid.dashcam.archive.store import Archive
+from egovid.dashcam.route.clock import iso
 from egovid.dashcam.route.tracks import project
 
 
@@ -96,8 +99,6 @@ class Stretch:
         return self.frame_end - self.frame_start
 
     def to_dict(self) -> dict:
-        from egovid.dashcam.route.clock import iso
-
         d = asdict(self)
         d.update(frames=self.frames, start=iso(self.start_utc), end=iso(self.end_utc))
         return d
@@ -167,9 +168,11 @@ def stretches(
     return out
 
 
-def search(fleet, q: Query) -> list[Stretch]:
-    """Every matching stretch of the archive's live drives, by start time: the spatial index names
-    the candidates (:meth:`FleetStore.candidates`), each candidate's own track decides."""
+def search(archive: Archive, q: Query) -> list[Stretch]:
+    """``egovid dashcam find``: every matching stretch of the archive's live drives, by start time:
+    the spatial index names the candidates (:meth:`FleetStore.candidates`), each candidate's own
+    track decides."""
+    fleet = FleetStore(archive.catalogue)
     near = (q.near[0], q.near[1], q.radius) if q.near is not None else None
     ids = set(fleet.candidates(q.box(), q.t_from, q.t_to, near))
     out: list[Stretch] = []

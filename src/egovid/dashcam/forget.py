@@ -1,5 +1,7 @@
 """``dashcam forget`` / ``lock`` / ``unlock``: retention applied to an archive.
 
+:func:`forget` picks the drives (:func:`choose`: named ones and the policies' picks, locked drives
+passed over) and forgets them (:func:`forget_drives`); :func:`set_lock` locks and unlocks.
 :func:`forget_drives` runs under the archive's maintenance lock (no ingest or gc at the same time)
 and changes the catalogue in one transaction, like an ingest:
 
@@ -29,7 +31,7 @@ from dataclasses import dataclass, field, replace
 
 from egovid.core.errors import EgovidError
 from egovid.dashcam.archive.catalogue import Drive, Segment
-from egovid.dashcam.archive.fleetstore import FleetStore
+from egovid.dashcam.archive.fleetstore import DriveMeta, FleetStore
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.extract import SegmentSnapshot, segment_digest
@@ -86,7 +88,9 @@ def trim_segment(archive: Archive, seg: Segment, r0: int, r1: int) -> Segment:
     lay, _ = codec.parse_header(blob)
     parsed = codec.parse(blob)
     (p0, _), (_, p1) = lay.run_packets()[r0], lay.run_packets()[r1 - 1]
-    new = codec.pack(lay.width, lay.height, lay.q, parsed.packets[p0:p1], lay.gop, lay.refresh, lay.starts[r0:r1])
+    new = codec.pack(
+        lay.width, lay.height, lay.q, parsed.packets[p0:p1], lay.gop, lay.refresh, lay.starts[r0:r1], lay.codec
+    )
     k0 = r0 * lay.refresh
     k1 = min(r1 * lay.refresh, seg.frame_end - seg.frame_start)
     params = {**seg.params, "run_offsets": codec.run_offsets(new), "recon_digest": None, "trimmed_from": seg.blob}
@@ -127,7 +131,9 @@ def choose(
     now: float | None = None,
 ) -> tuple[list[Drive], list[str]]:
     """The drives to forget: those named (a locked one is an error) and those the policies pick
-    (locked drives passed over and returned as the second list)."""
+    (locked drives passed over and returned as the second list). ``older_than_s``: every unlocked
+    drive recorded longer ago than this (seconds before ``now``, default the clock);
+    ``keep_bytes``: the oldest unlocked drives until the archive fits in this many bytes."""
     cat = archive.catalogue
     chosen: dict[int, Drive] = {}
     for key in names:
@@ -152,6 +158,128 @@ def choose(
     return sorted(chosen.values(), key=lambda d: d.start_utc), sorted(set(skipped))
 
 
+def forget(
+    archive: Archive,
+    names: list[str],
+    *,
+    older_than_s: float | None = None,
+    keep_bytes: int | None = None,
+    verify: bool = True,
+    dry_run: bool = False,
+    say: Say | None = None,
+) -> ForgetReport:
+    """``egovid dashcam forget``: forget the drives :func:`choose` picks (:func:`forget_drives`).
+    ``say`` hears ``kept NAME: locked`` for each locked drive a policy passed over, then each step.
+    When nothing is picked, the report lists no drive forgotten and only the locked ones kept."""
+    say = say or (lambda _s: None)
+    fleet = FleetStore(archive.catalogue)
+    chosen, skipped = choose(archive, fleet, names, older_than_s=older_than_s, keep_bytes=keep_bytes)
+    for name in skipped:
+        say(f"kept {name}: locked")
+    if not chosen:
+        return ForgetReport(skipped_locked=skipped, dry_run=dry_run)
+    rep = forget_drives(archive, fleet, chosen, verify=verify, dry_run=dry_run, say=say)
+    rep.skipped_locked = skipped
+    return rep
+
+
+def set_lock(archive: Archive, keys: list[str], locked: bool, note: str | None = None) -> list[Drive]:
+    """``egovid dashcam lock`` / ``unlock``: protect the live drives ``keys`` (names or ids) from
+    :func:`forget` and its policies, or let it remove them again (``note``: why, kept with a lock);
+    one transaction: an unknown drive changes nothing. Returns the drives."""
+    fleet = FleetStore(archive.catalogue)
+    with archive.catalogue.transaction():
+        found = [fleet.live_drive(k) for k in keys]
+        for d in found:
+            fleet.set_lock(d.id, locked, note if locked else None)
+    return found
+
+
+@dataclass
+class _Forget:
+    """A forget under way (inside its transaction): the drives forgotten now (``targets``) and
+    hidden earlier, every drive, the plan, every segment as it is and the trimmed ones replacing
+    some, and the forgotten drives' audio/telemetry blobs."""
+
+    targets: set[int]
+    everyone: dict[int, Drive]
+    metas: dict[int, DriveMeta]
+    plan: ForgetPlan
+    segs: dict[int, list[Segment]]
+    streams: dict[int, str]
+    trimmed: dict[int, list[Segment]] = field(default_factory=dict)
+
+    def name(self, i: int) -> str:
+        return self.everyone[i].name
+
+    def after(self) -> dict[int, list[Segment]]:
+        """Each drive's segments as extract will see them once the forget is committed."""
+        gone = set(self.plan.delete_segments)
+        return {
+            i: [t for s in ss if s.id not in gone for t in self.trimmed.get(s.id, [s])] for i, ss in self.segs.items()
+        }
+
+
+def _plan(archive: Archive, fleet: FleetStore, drives: list[Drive]) -> _Forget:
+    cat = archive.catalogue
+    for d in drives:
+        _refuse_locked(fleet, d)
+    metas = fleet.metas()
+    targets = {d.id for d in drives}
+    hidden = {i for i, m in metas.items() if m.state != "live"}
+    everyone = {d.id: d for d in cat.drives()}
+    live = [i for i in everyone if i not in targets and i not in hidden]
+    plan = plan_forget(segment_refs(archive), live, targets | hidden)
+    streams = {i: metas[i].streams_blob for i in targets | hidden if i in metas and metas[i].streams_blob}
+    return _Forget(targets, everyone, metas, plan, {i: cat.segments(i) for i in everyone}, streams)
+
+
+def _trim(archive: Archive, f: _Forget) -> None:
+    """Write the trimmed segments' blobs and give each its reconstruction digest, decoded from
+    the archive as it will be."""
+    by_id = {s.id: s for ss in f.segs.values() for s in ss}
+    for sid, ranges in f.plan.trim_segments.items():
+        f.trimmed[sid] = [trim_segment(archive, by_id[sid], r0, r1) for r0, r1 in ranges]
+    view = SegmentSnapshot(archive.blobs, f.after())
+    for sid, news in f.trimmed.items():
+        f.trimmed[sid] = [replace(t, params={**t.params, "recon_digest": segment_digest(view, t)}) for t in news]
+
+
+def _verify_dependents(archive: Archive, f: _Forget, rep: ForgetReport, say: Say) -> None:
+    """Decode every live drive coded against a forgotten one as extract will afterwards and compare
+    each segment with the encoder's digest; a mismatch aborts (the transaction rolls back)."""
+    after = f.after()
+    view = SegmentSnapshot(archive.blobs, after)
+    dependents = sorted({x for v in f.plan.needed_by.values() for x in v})
+    if not dependents:
+        return
+    say(f"verifying {len(dependents)} drive(s) coded against the forgotten ones: "
+        + ", ".join(f.name(i) for i in dependents))  # fmt: skip
+    for i in dependents:
+        for seg in after[i]:
+            if segment_digest(view, seg) != seg.params.get("recon_digest"):
+                raise EgovidError(
+                    f"drive {f.name(i)} would no longer decode as archived without the forgotten drives",
+                    "nothing was changed; report this (the archive keeps every drive as it was)",
+                )
+        rep.verified.append(f.name(i))
+
+
+def _delete_unused_blobs(archive: Archive, f: _Forget, rep: ForgetReport) -> None:
+    """After the commit: delete the bitstreams (and audio/telemetry) nothing refers to any more,
+    counting the bytes freed less the trimmed blobs written."""
+    used = archive.catalogue.blob_names()
+    sizes = {s.blob: s.bytes for ss in f.segs.values() for s in ss}
+    sizes.update({f.metas[i].streams_blob: f.metas[i].streams_bytes for i in f.streams})
+    for sha in dict.fromkeys([*f.plan.delete_blobs, *f.streams.values()]):
+        if sha in used:
+            continue
+        archive.blobs.delete(sha)
+        rep.bytes_freed += sizes.get(sha, 0)
+        rep.blobs_deleted += 1
+    rep.bytes_freed -= sum(t.bytes for news in f.trimmed.values() for t in news)
+
+
 def forget_drives(
     archive: Archive,
     fleet: FleetStore,
@@ -164,67 +292,33 @@ def forget_drives(
     """Forget ``drives`` (see the module docstring). ``say``: called with a line at each step."""
     say = say or (lambda _s: None)
     t0 = time.perf_counter()
-    cat = archive.catalogue
     rep = ForgetReport(dry_run=dry_run)
-    with archive.locks.maintenance("forget"), cat.transaction():
-        for d in drives:
-            _refuse_locked(fleet, d)
-        metas = fleet.metas()
-        targets = {d.id for d in drives}
-        hidden = {i for i, m in metas.items() if m.state != "live"}
-        everyone = {d.id: d for d in cat.drives()}
-        live = [i for i in everyone if i not in targets and i not in hidden]
-        plan: ForgetPlan = plan_forget(segment_refs(archive), live, targets | hidden)
-        segs = {i: cat.segments(i) for i in everyone}
-        by_id = {s.id: s for ss in segs.values() for s in ss}
-        streams = {i: metas[i].streams_blob for i in targets | hidden if i in metas and metas[i].streams_blob}
-        rep.forgotten = [everyone[i].name for i in sorted(targets)]
-        rep.purged = [everyone[i].name for i in plan.purge_drives if i in targets]
+    with archive.locks.maintenance("forget"), archive.catalogue.transaction():
+        f = _plan(archive, fleet, drives)
+        plan = f.plan
+        rep.forgotten = [f.name(i) for i in sorted(f.targets)]
+        rep.purged = [f.name(i) for i in plan.purge_drives if i in f.targets]
         rep.kept_as_reference = {
-            everyone[i].name: [everyone[x].name for x in plan.needed_by.get(i, [])] for i in plan.keep_as_reference
+            f.name(i): [f.name(x) for x in plan.needed_by.get(i, [])] for i in plan.keep_as_reference
         }
         if dry_run:
-            rep.bytes_freed = plan.bytes_freed + sum(metas[i].streams_bytes for i in streams)
+            rep.bytes_freed = plan.bytes_freed + sum(f.metas[i].streams_bytes for i in f.streams)
             rep.seconds = time.perf_counter() - t0
             return rep
-        # Trimmed segments, then the archive as extract will see it afterwards.
-        trimmed: dict[int, list[Segment]] = {}
-        for sid, ranges in plan.trim_segments.items():
-            trimmed[sid] = [trim_segment(archive, by_id[sid], r0, r1) for r0, r1 in ranges]
-        gone = set(plan.delete_segments)
-        after = {i: [t for s in ss if s.id not in gone for t in trimmed.get(s.id, [s])] for i, ss in segs.items()}
-        view = SegmentSnapshot(archive.blobs, after)
-        for sid, news in trimmed.items():
-            for k, t in enumerate(news):
-                trimmed[sid][k] = replace(t, params={**t.params, "recon_digest": segment_digest(view, t)})
-        after = {i: [t for s in ss if s.id not in gone for t in trimmed.get(s.id, [s])] for i, ss in segs.items()}
-        view = SegmentSnapshot(archive.blobs, after)
+        _trim(archive, f)
+        after = f.after()
         for i, ss in after.items():
             if i in plan.keep_as_reference:
-                rep.frames_kept[everyone[i].name] = sum(s.frame_end - s.frame_start for s in ss)
-        dependents = sorted({x for v in plan.needed_by.values() for x in v})
-        if verify and dependents:
-            say(f"verifying {len(dependents)} drive(s) coded against the forgotten ones: "
-                + ", ".join(everyone[i].name for i in dependents))  # fmt: skip
-            for i in dependents:
-                for seg in after[i]:
-                    if segment_digest(view, seg) != seg.params.get("recon_digest"):
-                        raise EgovidError(
-                            f"drive {everyone[i].name} would no longer decode as archived without the forgotten drives",
-                            "nothing was changed; report this (the archive keeps every drive as it was)",
-                        )
-                rep.verified.append(everyone[i].name)
-        fleet.apply_forget(plan, targets, everyone, trimmed)
-    # Committed: the bitstreams nothing refers to any more can go.
-    used = cat.blob_names()
-    sizes = {s.blob: s.bytes for s in by_id.values()}
-    sizes.update({metas[i].streams_blob: metas[i].streams_bytes for i in streams})
-    for sha in dict.fromkeys([*plan.delete_blobs, *streams.values()]):
-        if sha in used:
-            continue
-        archive.blobs.delete(sha)
-        rep.bytes_freed += sizes.get(sha, 0)
-        rep.blobs_deleted += 1
-    rep.bytes_freed -= sum(t.bytes for news in trimmed.values() for t in news)
+                rep.frames_kept[f.name(i)] = sum(s.frame_end - s.frame_start for s in ss)
+        if verify:
+            _verify_dependents(archive, f, rep, say)
+        fleet.apply_forget(
+            forgotten=f.targets,
+            delete_segments=plan.delete_segments,
+            trimmed=f.trimmed,
+            hide=plan.keep_as_reference,
+            purge=plan.purge_drives,
+        )
+    _delete_unused_blobs(archive, f, rep)  # committed: what nothing refers to any more can go
     rep.seconds = time.perf_counter() - t0
     return rep

@@ -77,7 +77,7 @@ def saving_colour(saving: float | None) -> str:
 
 def _simplified(lat: np.ndarray, lon: np.ndarray, tolerance_m: float) -> np.ndarray:
     """(N, 2) lat/lon of a track simplified (Douglas-Peucker in metres) to ``tolerance_m``."""
-    import shapely
+    import shapely  # loaded only when a map is drawn
 
     lat, lon = np.asarray(lat, float), np.asarray(lon, float)
     ok = np.isfinite(lat) & np.isfinite(lon)

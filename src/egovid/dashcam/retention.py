@@ -121,6 +121,36 @@ def plan_forget(segments: Iterable[SegmentRef], live_drives: Iterable[int], forg
     segs = list(segments)
     live = set(live_drives)
     gone = set(forgotten)
+    needed = _needed_runs(segs, live)
+    plan = ForgetPlan(needed_by=_needed_by(segs, needed, live, gone))
+    kept_blobs: set[str] = set()
+    freed: dict[str, int] = {}  # blob -> bytes it frees
+    for s in segs:
+        mask = needed[s.id]
+        if s.drive_id not in gone:
+            if not mask.all():  # a live drive's segment is always needed; anything else is a caller error
+                raise ValueError(f"segment {s.id} of drive {s.drive_id} is neither live nor forgotten")
+            kept_blobs.add(s.blob)
+            continue
+        if not mask.any():
+            plan.delete_segments.append(s.id)
+            freed[s.blob] = s.bytes
+            continue
+        plan.keep_as_reference.setdefault(s.drive_id, []).append(s.id)
+        if mask.all() or len(s.run_bytes) != s.runs:
+            kept_blobs.add(s.blob)  # kept whole (all of it is needed, or its runs' sizes are unknown)
+            continue
+        plan.trim_segments[s.id] = _ranges(mask)
+        freed[s.blob] = int(sum(b for b, m in zip(s.run_bytes, mask, strict=True) if not m))
+    plan.purge_drives = sorted(d for d in gone if d not in plan.keep_as_reference)
+    plan.delete_blobs = sorted(b for b in freed if b not in kept_blobs)
+    plan.bytes_freed = sum(freed[b] for b in plan.delete_blobs)
+    return plan
+
+
+def _needed_runs(segs: list[SegmentRef], live: set[int]) -> dict[int, np.ndarray]:
+    """Segment id -> bool mask over its runs: those a live drive needs, directly or through the
+    joint segments predicted from them (a work list of newly needed runs, each followed once)."""
     by_drive: dict[int, list[SegmentRef]] = {}
     for s in segs:
         by_drive.setdefault(s.drive_id, []).append(s)
@@ -146,12 +176,18 @@ def plan_forget(segments: Iterable[SegmentRef], live_drives: Iterable[int], forg
             if fresh.any():
                 needed[t.id] |= fresh
                 queue.append((t, fresh))
-    plan = ForgetPlan()
-    # Which live drives depend (through kept segments) on each drive.
+    return needed
+
+
+def _needed_by(
+    segs: list[SegmentRef], needed: dict[int, np.ndarray], live: set[int], gone: set[int]
+) -> dict[int, list[int]]:
+    """Forgotten drive -> the live drives that depend on it (through kept segments)."""
     edges: dict[int, set[int]] = {}
     for s in segs:
         if needed[s.id].any() and s.ref_drive_id is not None:
             edges.setdefault(s.drive_id, set()).add(s.ref_drive_id)
+    out: dict[int, list[int]] = {}
     for root in sorted(live):
         seen, stack = set(), [root]
         while stack:
@@ -160,30 +196,8 @@ def plan_forget(segments: Iterable[SegmentRef], live_drives: Iterable[int], forg
                     seen.add(nxt)
                     stack.append(nxt)
         for x in seen & gone:
-            plan.needed_by.setdefault(x, []).append(root)
-    kept_blobs: set[str] = set()
-    freed: dict[str, int] = {}
-    for s in segs:
-        mask = needed[s.id]
-        if s.drive_id not in gone:
-            if not mask.all():  # a live drive's segment is always needed; anything else is a caller error
-                raise ValueError(f"segment {s.id} of drive {s.drive_id} is neither live nor forgotten")
-            kept_blobs.add(s.blob)
-            continue
-        if not mask.any():
-            plan.delete_segments.append(s.id)
-            freed[s.blob] = s.bytes
-            continue
-        plan.keep_as_reference.setdefault(s.drive_id, []).append(s.id)
-        if mask.all() or len(s.run_bytes) != s.runs:
-            kept_blobs.add(s.blob)  # kept whole (all of it is needed, or its runs' sizes are unknown)
-            continue
-        plan.trim_segments[s.id] = _ranges(mask)
-        freed[s.blob] = int(sum(b for b, m in zip(s.run_bytes, mask, strict=True) if not m))
-    plan.purge_drives = sorted(d for d in gone if d not in plan.keep_as_reference)
-    plan.delete_blobs = sorted(b for b in freed if b not in kept_blobs)
-    plan.bytes_freed = sum(freed[b] for b in plan.delete_blobs)
-    return plan
+            out.setdefault(x, []).append(root)
+    return out
 
 
 @dataclass(frozen=True)

@@ -245,6 +245,32 @@ def _vehicles(spec: DriveSpec, truth: DriveTruth) -> list[tuple[int, float, floa
     return out
 
 
+#: File suffix of each GPS format a drive's track is written in.
+GPS_SUFFIXES = {"gpx": ".gpx", "nmea": ".nmea", "csv": ".gps.csv"}
+#: Where the side street leaves the main road (metres along it), and where a drive joins it.
+SIDE_TURN_M, SIDE_START_M = 445.0, 5.0
+
+
+def route_legs(route: str, start_m: float, end_m: float) -> list[tuple[str, float, float]]:
+    """The legs of a drive along ``route`` (``main``: the main road from ``start_m`` to ``end_m``;
+    ``side``: the main road from ``start_m`` to the turn-off, then the side street to ``end_m``,
+    at least 50 m)."""
+    if route == "main":
+        return [("main", start_m, end_m)]
+    if route == "side":
+        return [("main", start_m, SIDE_TURN_M), ("side", SIDE_START_M, max(end_m, 50.0))]
+    raise EgovidError(f"unknown route {route!r}", "choose main or side")
+
+
+def drive_files(out: str | os.PathLike, gps_format: str = "gpx") -> tuple[Path, Path]:
+    """Where a drive rendered to the video ``out`` has its GPS track and its ground truth
+    (``<stem>.gpx``/``.nmea``/``.gps.csv`` and ``<stem>.truth.csv``)."""
+    out = Path(out)
+    if gps_format not in GPS_SUFFIXES:
+        raise EgovidError(f"unknown GPS format {gps_format!r}", "choose gpx, nmea or csv")
+    return out.with_suffix(GPS_SUFFIXES[gps_format]), out.with_suffix(".truth.csv")
+
+
 def render_drive(
     spec: DriveSpec,
     out: str | os.PathLike,
@@ -257,82 +283,79 @@ def render_drive(
     crf: int = 14,
     progress=None,
 ) -> tuple[Path, Path, DriveTruth]:
-    """Render a drive to ``out`` (video) with its GPS track next to it; returns (video, gps, truth)."""
+    """Render a drive to ``out`` (video) with its GPS track and ground truth next to it (see
+    :func:`drive_files`); returns (video, gps, truth)."""
     out = Path(out)
+    gps_path, truth_path = drive_files(out, gps_format)
     truth = simulate(spec, fps)
-    streets = route_map()
-    intr = Intrinsics.from_hfov(width, height, 90.0)
-    vehicles = _vehicles(spec, truth)
-    sun = spec.light.sun()
-    gain = np.array(spec.light.gain)
-    rng = np.random.default_rng(spec.seed + 7)
-    pitch_noise = np.convolve(rng.normal(0, spec.vibration, len(truth.times) + 8), np.ones(5) / 5, mode="same")
-    roll_noise = np.convolve(rng.normal(0, spec.vibration * 0.6, len(truth.times) + 8), np.ones(5) / 5, mode="same")
-    flip = np.diag([1.0, -1.0, 1.0])
+    camera = _DriveCamera(spec, truth, width, height)
     cv2.setRNGSeed(spec.seed + 3)
     noise = np.empty((height, width, 3), np.float32)
-    start = spec.start_time
-    meta_time = start.strftime("%Y-%m-%dT%H:%M:%S.000000Z")
     writer = VideoWriter(out, width, height, fps, crf=crf, preset="veryfast")
-    writer._container.metadata["creation_time"] = meta_time
+    writer.container.metadata["creation_time"] = spec.start_time.strftime("%Y-%m-%dT%H:%M:%S.000000Z")
     with writer:
         for k in range(len(truth.times)):
-            street = streets[truth.street[k]]
-            scene = street.scene
-            leg = truth.leg[k]
-            forward = spec.legs[leg][2] >= spec.legs[leg][1]
-            z = truth.s[k] if forward else street.length - truth.s[k]
-            x = truth.lateral[k]
-            R = rot_y(truth.yaw[k]) @ rot_x(-pitch_noise[k]) @ rot_z(roll_noise[k]) @ flip
-            cam = np.array([x, 1.3 + 0.01 * pitch_noise[k], z])
-            boxes, colours = [], []
-            for vleg, vx, vz, vs, col in vehicles:
-                if vleg != leg:
-                    continue
-                zc = vz + vs * truth.times[k]
-                boxes.append([vx - 0.9, vx + 0.9, 0.0, 1.5, zc - 2.25, zc + 2.25])
-                colours.append(col)
-            vb = np.array(boxes, dtype=np.float64).reshape(-1, 6)
-            vc = np.array(colours, dtype=np.float64).reshape(-1, 3)
-            img = render_kernel(
-                width,
-                height,
-                intr.fx,
-                intr.fy,
-                intr.cx,
-                intr.cy,
-                R,
-                cam,
-                scene.textures,
-                scene.block_z,
-                scene.block_h,
-                scene.block_tex,
-                scene.tree_z,
-                scene.tree_r,
-                vb,
-                vc,
-                scene.road_tex,
-                scene.walk_tex,
-                scene.cloud_tex,
-                scene.leaf_tex,
-                gain,
-                sun,
-                spec.light.shadow_dim,
-                spec.light.cloud_cover,
-                float(spec.seed * 37 % 256),
-                spec.light.haze,
-            )
+            img = camera.render(k)
             if noise_std > 0:
                 cv2.randn(noise, 0.0, noise_std)
                 img = cv2.add(img, noise, dtype=cv2.CV_8U)
             writer.write(img, truth.times[k])
             if progress is not None:
                 progress(k + 1, len(truth.times))
-    gps = write_gps(
-        spec, truth, out.with_suffix({"gpx": ".gpx", "nmea": ".nmea", "csv": ".gps.csv"}[gps_format]), gps_format
-    )
-    atomic_write_text(out.with_suffix(".truth.csv"), truth.to_csv())
+    gps = write_gps(spec, truth, gps_path, gps_format)
+    atomic_write_text(truth_path, truth.to_csv())
     return out, gps, truth
+
+
+class _DriveCamera:
+    """The dashcam of one drive: its pose at every frame (lane, heading, vibration) and the other
+    vehicles in view; :meth:`render` draws frame k (BGR uint8, no sensor noise)."""
+
+    def __init__(self, spec: DriveSpec, truth: DriveTruth, width: int, height: int) -> None:
+        self.spec, self.truth = spec, truth
+        self.width, self.height = width, height
+        self.streets = route_map()
+        self.intr = Intrinsics.from_hfov(width, height, 90.0)
+        self.vehicles = _vehicles(spec, truth)
+        self.sun = spec.light.sun()
+        self.gain = np.array(spec.light.gain)
+        rng = np.random.default_rng(spec.seed + 7)
+        n = len(truth.times) + 8
+        self.pitch_noise = np.convolve(rng.normal(0, spec.vibration, n), np.ones(5) / 5, mode="same")
+        self.roll_noise = np.convolve(rng.normal(0, spec.vibration * 0.6, n), np.ones(5) / 5, mode="same")
+
+    def render(self, k: int) -> np.ndarray:
+        spec, truth, intr, light = self.spec, self.truth, self.intr, self.spec.light
+        street = self.streets[truth.street[k]]
+        scene = street.scene
+        leg = truth.leg[k]
+        forward = spec.legs[leg][2] >= spec.legs[leg][1]
+        z = truth.s[k] if forward else street.length - truth.s[k]
+        R = rot_y(truth.yaw[k]) @ rot_x(-self.pitch_noise[k]) @ rot_z(self.roll_noise[k]) @ _FLIP
+        cam = np.array([truth.lateral[k], 1.3 + 0.01 * self.pitch_noise[k], z])
+        vb, vc = self._vehicle_boxes(leg, truth.times[k])
+        return render_kernel(
+            self.width, self.height, intr.fx, intr.fy, intr.cx, intr.cy, R, cam,
+            scene.textures, scene.block_z, scene.block_h, scene.block_tex, scene.tree_z, scene.tree_r, vb, vc,
+            scene.road_tex, scene.walk_tex, scene.cloud_tex, scene.leaf_tex, self.gain, self.sun,
+            light.shadow_dim, light.cloud_cover, float(spec.seed * 37 % 256), light.haze,
+        )  # fmt: skip
+
+    def _vehicle_boxes(self, leg: int, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(V, 6) boxes [x0, x1, y0, y1, z0, z1] in metres and (V, 3) BGR colours of the vehicles
+        on ``leg`` at time ``t`` seconds."""
+        boxes, colours = [], []
+        for vleg, vx, vz, vs, col in self.vehicles:
+            if vleg != leg:
+                continue
+            zc = vz + vs * t
+            boxes.append([vx - 0.9, vx + 0.9, 0.0, 1.5, zc - 2.25, zc + 2.25])
+            colours.append(col)
+        return np.array(boxes, dtype=np.float64).reshape(-1, 6), np.array(colours, dtype=np.float64).reshape(-1, 3)
+
+
+#: Camera axes (x right, y down) from the street's (y up).
+_FLIP = np.diag([1.0, -1.0, 1.0])
 
 
 def gps_samples(spec: DriveSpec, truth: DriveTruth, rate_hz: float = 1.0, seed_offset: int = 0) -> dict:

@@ -14,13 +14,25 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.camera.intrinsics import Intrinsics, resolve_intrinsics
 from egovid.core.errors import EgovidError
 from egovid.core.trajectory import Trajectory, write_motion_csv, write_tum
 from egovid.core.video import VideoWriter
+from egovid.synth.motions import MOTIONS, MotionSpec
 from egovid.synth.panorama import build_panorama
 from egovid.synth.photos import ALL, photo
 from egovid.synth.render import SphereRenderer
+
+__all__ = [
+    "ALL",
+    "MOTIONS",
+    "MotionSpec",
+    "SynthResult",
+    "ground_truth_paths",
+    "render_fpv",
+    "scene_panorama",
+    "synth_fpv",
+]
 
 
 @dataclass
@@ -112,3 +124,37 @@ def render_fpv(
     write_motion_csv(csv_path, truth)
     write_tum(tum_path, truth)
     return SynthResult(out, csv_path, tum_path, truth)
+
+
+def synth_fpv(
+    out: str | os.PathLike,
+    motion: MotionSpec,
+    *,
+    width: int = 1280,
+    height: int = 720,
+    fps: float = 30.0,
+    focal: float | None = None,
+    hfov: float | None = None,
+    scene: str = "panorama",
+    noise_std: float = 0.0,
+    forward_speed: float = 0.0,
+    seed: int = 0,
+    progress=None,
+) -> SynthResult:
+    """``egovid synth fpv``: render the named ``motion`` (:class:`~egovid.synth.motions.MotionSpec`)
+    with the camera of ``focal`` pixels or ``hfov`` degrees across the long side (default: 830 px
+    at 1920 px width); the other parameters are :func:`render_fpv`'s."""
+    intr = resolve_intrinsics(width, height, focal, hfov)
+    return render_fpv(
+        out,
+        motion.angles(),
+        width=width,
+        height=height,
+        fps=fps,
+        intrinsics=intr,
+        scene=scene,
+        noise_std=noise_std,
+        forward_speed=forward_speed,
+        seed=seed,
+        progress=progress,
+    )

@@ -1,12 +1,18 @@
 """Camera rotation sequences (yaw, pitch, roll in degrees per frame) for synthetic videos.
 
 All functions return an (N, 3) float array; add them to compose motions, e.g.
-``running(...) + jitter(...)``.
+``running(...) + jitter(...)``. :class:`MotionSpec` names one of the :data:`MOTIONS` with its
+parameters (what ``egovid synth fpv --motion`` takes) and builds it.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
+
+from egovid.core.errors import EgovidError
 
 
 def running(
@@ -66,4 +72,47 @@ def jitter(n_frames: int, std_deg: tuple[float, float, float] = (0.3, 0.3, 0.2),
     return rng.normal(0.0, 1.0, (n_frames, 3)) * np.asarray(std_deg)
 
 
-MOTIONS = ("running", "pan", "random-walk", "still")
+@dataclass(frozen=True)
+class MotionSpec:
+    """A named motion of ``frames`` frames (degrees, frames): ``kind`` one of :data:`MOTIONS`;
+    ``running``: yaw and pitch sine amplitudes, the yaw ``period`` in frames, roll sway; ``pan``: a
+    yaw pan of ``pan_deg`` with roll sway ``roll_amp`` at the period; ``random-walk``: seeded by
+    ``seed``; ``still``: none. White shake of ``jitter_deg`` (std per axis, one value or yaw, pitch,
+    roll) is added on top, seeded by ``seed``."""
+
+    kind: str = "running"
+    frames: int = 300
+    yaw_amp: float = 10.0
+    pitch_amp: float = 2.5
+    period: float = 24.0
+    roll_amp: float = 1.5
+    pan_deg: float = 40.0
+    jitter_deg: float | tuple[float, float, float] = 0.1
+    seed: int = 0
+
+    def angles(self) -> np.ndarray:
+        """The (frames, 3) yaw, pitch, roll in degrees."""
+        if self.kind not in _BUILDERS:
+            raise EgovidError(f"unknown motion {self.kind!r}", f"choose one of {', '.join(MOTIONS)}")
+        angles = _BUILDERS[self.kind](self)
+        std = (self.jitter_deg,) * 3 if np.isscalar(self.jitter_deg) else tuple(self.jitter_deg)
+        if max(std) > 0:
+            angles = angles + jitter(self.frames, std, seed=self.seed)
+        return angles
+
+
+def _pan_with_sway(s: MotionSpec) -> np.ndarray:
+    angles = pan(s.frames, s.pan_deg)
+    angles[:, 2] += s.roll_amp * np.sin(2 * np.pi * np.arange(s.frames) / s.period)
+    return angles
+
+
+#: How each named motion is built from its :class:`MotionSpec`.
+_BUILDERS: dict[str, Callable[[MotionSpec], np.ndarray]] = {
+    "running": lambda s: running(s.frames, s.yaw_amp, s.pitch_amp, s.period, s.roll_amp),
+    "pan": _pan_with_sway,
+    "random-walk": lambda s: random_walk(s.frames, seed=s.seed),
+    "still": lambda s: np.zeros((s.frames, 3)),
+}
+#: The named motions.
+MOTIONS = tuple(_BUILDERS)

@@ -9,6 +9,8 @@ import os
 import cv2
 import numpy as np
 
+from egovid.core.errors import EgovidError
+
 #: Colour photographs with rich texture (scikit-image names).
 COLOUR = (
     "astronaut",
@@ -58,7 +60,5 @@ def _load(name: str) -> np.ndarray:
 def photo(name: str) -> np.ndarray:
     """A bundled photo as an HxWx3 BGR uint8 array (a copy)."""
     if name not in ALL:
-        from egovid.core.errors import EgovidError
-
         raise EgovidError(f"unknown photo {name!r}", f"choose one of: {', '.join(ALL)}")
     return _load(name).copy()

@@ -1,1 +1,2 @@
-"""What a camera says about itself: intrinsics, ExifTool metadata and embedded telemetry."""
+"""What a camera says about itself: intrinsics (and which a video file has), ExifTool metadata and
+embedded telemetry."""

@@ -1,26 +1,16 @@
-"""Pinhole camera intrinsics, and where a video's come from.
+"""Pinhole camera intrinsics (pure numbers; which intrinsics a video file has is decided in
+:mod:`egovid.core.camera.resolve`).
 
 Pixels are measured from the top-left corner of the image; the camera looks along +z with x to
 the right and y down (the OpenCV convention). The default camera is the GoPro-like 1080p wide
 view the thesis uses in §10.1.2: focal length 830 px at 1920 px (horizontal field of view 98.3°),
 scaled with the image's long side, so a portrait video (rotation flag 90°) gets the same focal
 length in pixels as the same camera held in landscape.
-
-:func:`resolve_camera` is the one place that decides a video's intrinsics, in this order:
-
-1. ``--focal PX`` or ``--hfov DEG`` given by the user;
-2. (in :mod:`egovid.core.motion.source`, when a gyro is recorded) the focal length fitted from the
-   gyro against the video;
-3. the lens mode the camera recorded (GoPro ``VFOV``: Wide, Medium, Narrow, SuperView, Linear),
-   through GoPro's published field of view and an equidistant (fisheye) lens;
-4. a 35 mm-equivalent focal length in the file's metadata (phones; read with ExifTool);
-5. the default camera above.
 """
 
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -116,7 +106,7 @@ def _check_size(width: int, height: int) -> None:
 def resolve_intrinsics(width: int, height: int, focal: float | None = None, hfov: float | None = None) -> Intrinsics:
     """Intrinsics from ``--focal PX`` or ``--hfov DEG`` (not both; the field of view is across the
     picture's long side); the default camera otherwise. For a video file use
-    :func:`resolve_camera`, which also reads the file's lens metadata."""
+    :func:`egovid.core.camera.resolve.resolve_camera`, which also reads the file's lens metadata."""
     if focal is not None and hfov is not None:
         raise EgovidError("both --focal and --hfov were given", "give only one of them")
     if focal is not None:
@@ -127,139 +117,3 @@ def resolve_intrinsics(width: int, height: int, focal: float | None = None, hfov
             return Intrinsics.from_focal(width, height, f)
         return Intrinsics.from_hfov(width, height, hfov)
     return Intrinsics.default(width, height)
-
-
-# --------------------------------------------------------------------------------------------
-# Intrinsics of a video file.
-
-#: GoPro's published horizontal field of view (degrees, 16:9) per lens mode, and whether the
-#: picture is fisheye (equidistant: focal = half width / half angle in radians) or rectilinear.
-GOPRO_LENS_HFOV: dict[str, tuple[float, bool]] = {
-    "W": (118.2, True),  # Wide
-    "M": (94.4, True),  # Medium
-    "N": (64.4, True),  # Narrow
-    "S": (122.6, True),  # SuperView (stretched 4:3; centre approximated)
-    "L": (85.8, False),  # Linear (dewarped)
-    "R": (85.8, False),  # Linear + horizon levelling
-}
-
-#: Diagonal of a 35 mm film frame in millimetres (36 x 24 mm), the reference of 35 mm-equivalent
-#: focal lengths.
-FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)
-
-#: ExifTool tag names that carry a 35 mm-equivalent focal length in millimetres.
-FOCAL_35MM_TAGS = ("FocalLengthIn35mmFormat", "CameraFocalLength35mmEquivalent", "FocalLength35mm", "FocalLength35efl")
-
-
-@dataclass(frozen=True)
-class CameraModel:
-    """A video's intrinsics (display orientation) and where they came from.
-
-    ``source`` is one of ``"flag"``, ``"gyro-fit"``, ``"lens-mode"``, ``"35mm-equivalent"``,
-    ``"default"``; ``detail`` says what exactly (in words); ``rotation`` the container's display
-    rotation in degrees (the intrinsics already account for it).
-    """
-
-    intrinsics: Intrinsics
-    source: str
-    detail: str
-    rotation: int = 0
-
-    def with_focal(self, focal_px: float, source: str, detail: str) -> CameraModel:
-        """The same camera with another focal length (pixels)."""
-        i = self.intrinsics
-        return CameraModel(Intrinsics.from_focal(i.width, i.height, focal_px), source, detail, self.rotation)
-
-    def to_dict(self) -> dict:
-        """JSON-ready description (pixels and degrees)."""
-        i = self.intrinsics
-        return {
-            "width": i.width,
-            "height": i.height,
-            "focal_px": round(i.focal, 3),
-            "hfov_deg": round(i.hfov_deg, 3),
-            "vfov_deg": round(i.vfov_deg, 3),
-            "source": self.source,
-            "detail": self.detail,
-            "rotation": self.rotation,
-        }
-
-
-def _lens_mode_focal(long_side: int, mode: str) -> tuple[float, str] | None:
-    code = mode.strip().upper()[:1]
-    if code not in GOPRO_LENS_HFOV:
-        return None
-    hfov, fisheye = GOPRO_LENS_HFOV[code]
-    half = math.radians(hfov / 2.0)
-    focal = long_side / 2.0 / (half if fisheye else math.tan(half))
-    kind = "equidistant fisheye" if fisheye else "rectilinear"
-    return focal, f"{hfov:g}° published field of view, {kind}"
-
-
-def resolve_camera(
-    video: str | os.PathLike,
-    focal: float | None = None,
-    hfov: float | None = None,
-    *,
-    telemetry=None,
-    tags: dict | None = None,
-) -> CameraModel:
-    """The intrinsics of ``video`` in display orientation (see the module docstring for the order).
-
-    ``telemetry`` (:class:`egovid.core.camera.telemetry.CameraTelemetry`) and ``tags`` (ExifTool tags of the
-    file) are read from the file when not given; metadata that cannot be read is skipped, never
-    an error. Raises :class:`EgovidError` for an unreadable video or absurd ``focal``/``hfov``.
-    """
-    from egovid.core.video import probe
-
-    info = probe(video)
-    w, h, rot = info.width, info.height, info.rotation
-    long_side = max(w, h)
-    if focal is not None or hfov is not None:
-        intr = resolve_intrinsics(w, h, focal, hfov)
-        what = f"--focal {focal:g} px" if focal is not None else f"--hfov {hfov:g}° across the long side"
-        return CameraModel(intr, "flag", what, rot)
-    if telemetry is None:
-        from egovid.core.camera.telemetry import read_camera_telemetry
-
-        try:
-            telemetry = read_camera_telemetry(video)
-        except EgovidError:
-            telemetry = None
-    camera = " ".join(x for x in (getattr(telemetry, "make", None), getattr(telemetry, "model", None)) if x)
-    mode = getattr(telemetry, "lens_mode", None)
-    if mode:
-        found = _lens_mode_focal(long_side, mode)
-        if found is not None:
-            f, how = found
-            name = telemetry.lens_name or mode
-            return CameraModel(
-                Intrinsics.from_focal(w, h, f), "lens-mode", f"{camera} {name} lens ({how})".strip(), rot
-            )
-    f35 = getattr(telemetry, "zoom_35mm", None)
-    if f35 is None:
-        if tags is None:
-            from egovid.core.camera.exif import read_tags
-
-            try:
-                tags = read_tags(video)
-            except EgovidError:
-                tags = {}
-        from egovid.core.camera.exif import find_tag
-
-        f35 = _positive(find_tag(tags, FOCAL_35MM_TAGS))
-    if f35 is not None:
-        f = f35 * math.hypot(w, h) / FILM_DIAGONAL_MM
-        if HFOV_RANGE_DEG[0] < 2 * math.degrees(math.atan2(long_side / 2, f)) < HFOV_RANGE_DEG[1]:
-            return CameraModel(Intrinsics.from_focal(w, h, f), "35mm-equivalent", f"{f35:g} mm (35 mm equivalent)", rot)
-    return CameraModel(
-        Intrinsics.default(w, h), "default", f"{DEFAULT_FOCAL_AT_1080P:g} px at 1920 px, scaled to the long side", rot
-    )
-
-
-def _positive(value) -> float | None:
-    try:
-        v = float(str(value).split()[0])
-    except (TypeError, ValueError, IndexError):
-        return None
-    return v if math.isfinite(v) and v > 0 else None

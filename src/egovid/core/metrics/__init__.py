@@ -1,1 +1,2 @@
-"""Metrics: masked inter-frame transformation fidelity (ITF, OITF, RITF), pose error, BD-rate."""
+"""Metrics: PSNR, masked inter-frame transformation fidelity (ITF), the visual errors (OITF, RITF)
+and pose errors of a visual odometer, and high-frequency jitter from phase correlation."""

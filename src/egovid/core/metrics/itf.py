@@ -5,19 +5,17 @@ version computes each MSE only over pixels that carry image content in both fram
 21.18–21.19). The mask comes from the homography that produced the frame, never from pixel
 colour: a dark scene is not a black border.
 
-PSNR is taken on the 8-bit luma (BT.601 weights). Two identical masked frames have an infinite
-PSNR; ``cap_db`` bounds it (default 100 dB, documented in docs/voeval.md): a perfect result must
-not dominate an average.
+PSNR (:mod:`egovid.core.metrics.psnr`) is taken on the 8-bit luma (BT.601 weights). Two identical
+masked frames have an infinite PSNR; ``cap_db`` bounds it (default 100 dB, documented in
+docs/voeval.md): a perfect result must not dominate an average.
 """
 
 from __future__ import annotations
 
-import math
-
 import cv2
 import numpy as np
 
-DEFAULT_CAP_DB = 100.0
+from egovid.core.metrics.psnr import DEFAULT_CAP_DB, masked_psnr
 
 
 def luma(image: np.ndarray) -> np.ndarray:
@@ -25,21 +23,6 @@ def luma(image: np.ndarray) -> np.ndarray:
     if image.ndim == 2:
         return image
     return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-
-
-def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None, cap_db: float = DEFAULT_CAP_DB) -> float:
-    """PSNR (dB) of two 8-bit luma images over ``mask`` (bool, True = content); NaN if it is empty."""
-    if mask is not None:
-        m8 = mask.view(np.uint8) if mask.dtype == bool else mask
-        n = int(cv2.countNonZero(m8))
-        if n == 0:
-            return float("nan")
-        mse = cv2.norm(a, b, cv2.NORM_L2SQR, m8) / n
-    else:
-        mse = cv2.norm(a, b, cv2.NORM_L2SQR) / a.size
-    if mse <= 255.0**2 * 10 ** (-cap_db / 10):
-        return cap_db
-    return 10.0 * math.log10(255.0**2 / mse)
 
 
 class ITFAccumulator:

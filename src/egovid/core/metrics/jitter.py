@@ -12,25 +12,8 @@ is measured in its own (magnified) pixels, as a viewer sees it.
 
 from __future__ import annotations
 
-import os
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
-
-from egovid.core.video import iter_frames, probe
-
-
-@dataclass
-class Jitter:
-    """``rms_px``: high-passed path RMS (pixels of the ``width``-wide copy); ``path``: (K, 2)
-    accumulated shift per frame; ``fps``; ``cutoff_hz``; ``width``."""
-
-    rms_px: float
-    path: np.ndarray
-    fps: float
-    cutoff_hz: float
-    width: int
 
 
 def high_pass_rms(path: np.ndarray, fps: float, cutoff_hz: float = 3.0) -> float:
@@ -78,14 +61,3 @@ class ShiftPath:
     @property
     def path(self) -> np.ndarray:
         return np.cumsum(np.array(self._shifts), axis=0)
-
-
-def video_jitter(video: str | os.PathLike, *, width: int = 480, cutoff_hz: float = 3.0, crop: float = 1.0) -> Jitter:
-    """Jitter of ``video`` (see the module docstring). ``crop`` < 1 measures only the centred
-    ``crop`` share of each frame (to leave out black borders of an unzoomed stabiliser output)."""
-    info = probe(video)
-    acc = ShiftPath(width, crop)
-    for f in iter_frames(video, gray=True):
-        acc.add(f.image)
-    path = acc.path
-    return Jitter(high_pass_rms(path, info.fps, cutoff_hz), path, info.fps, cutoff_hz, round(info.width * acc.scale))

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
-from egovid.core.metrics.itf import masked_psnr
+from egovid.core.metrics.psnr import masked_psnr
 
 DEFAULT_CAP_DB = 60.0
 

@@ -28,6 +28,7 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
@@ -139,11 +140,6 @@ class MotionEstimate:
         """Number of frame pairs whose rotation could not be estimated."""
         return sum(1 for _, _, p in self.pairs if not p.ok)
 
-    @property
-    def bridged_frames(self) -> int:
-        """Number of frames whose step from the previous frame was not measured by its own pair."""
-        return 0 if self.confidence is None else int(np.sum(self.confidence < CONF_MEASURED))
-
 
 def collect_pairs(
     video: str | os.PathLike,
@@ -156,8 +152,6 @@ def collect_pairs(
     Raises :class:`EgovidError` for unreadable videos and bad options; never for what the
     pictures contain.
     """
-    import cv2
-
     opts = options or MotionOptions()
     if not opts.lags or min(opts.lags) < 1 or 1 not in opts.lags:
         raise EgovidError(f"lags {opts.lags} must include 1 and be positive", "use e.g. --lags 1,5")
@@ -172,38 +166,92 @@ def collect_pairs(
         )
     scale = min(1.0, opts.work_width / info.width)
     work = intr.scaled(scale)
-    extractor = FeatureExtractor(opts.features, opts.n_features)
-    matcher = Matcher(extractor.binary)
-    local = threading.local()
-    max_lag = max(opts.lags)
-    long_lags = sorted(set(opts.lags) - {1})
-    # With long_every > 1 the longer pairs ending at a frame are chosen LONG_DELAY frames later,
-    # once the distance-1 pairs around it are measured: near a failed step they follow the
-    # every-frame schedule (the longer pairs are all that bridges it).
-    delay = LONG_DELAY if opts.long_every > 1 and long_lags else 0
-    window: deque[tuple[int, Future[FrameFeatures]]] = deque(maxlen=max_lag + delay + 1)
-    steps: dict[int, Future] = {}  # j -> the distance-1 pair (j - 1, j)
-    pairs: list[tuple[int, int, PairRotation]] = []
-    matches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
     times: list[float] = []
     t_start = time.perf_counter()
     cv2.setRNGSeed(12345)
     # The solver's libraries take ~1 s to import; the pair jobs leave the interpreter free most of
     # the time (OpenCV and the compiled fit run without the GIL), so import them meanwhile.
     threading.Thread(target=_import_solver, name="import-solver", daemon=True).start()
+    with _PairScheduler(opts) as scheduler:
+        for frame in iter_frames(video, gray=True, scale=scale if scale < 1.0 else None, max_frames=opts.max_frames):
+            if frame.image.shape[1] != work.width or frame.image.shape[0] != work.height:
+                # FFmpeg may round the scaled size differently; follow the actual image.
+                work = intr.scaled(frame.image.shape[1] / intr.width)
+            scheduler.add(frame.index, frame.image, work.K)
+            times.append(frame.time)
+            if progress is not None:
+                progress(frame.index + 1, info.frame_count)
+        scheduler.finish(work.K)
+    rank = {lag: r for r, lag in enumerate(opts.lags)}
+    pairs = sorted(scheduler.pairs, key=lambda p: (p[1], rank[p[1] - p[0]]))  # by frame, then lag
+    return PairSet(np.asarray(times), pairs, work, scheduler.matches, opts.threshold_px, time.perf_counter() - t_start)
 
-    def features_job(image: np.ndarray) -> FrameFeatures:
+
+class _PairScheduler:
+    """The pair jobs of :func:`collect_pairs` on a thread pool: keypoints of each frame as it is
+    decoded, its distance-1 pair at once, its longer pairs ``delay`` frames later (see
+    :data:`LONG_DELAY`); only the last ``max(lags) + delay + 1`` frames' features are held."""
+
+    def __init__(self, opts: MotionOptions) -> None:
+        self.opts = opts
+        self.matcher = Matcher(FeatureExtractor(opts.features, opts.n_features).binary)
+        self.local = threading.local()
+        self.max_lag = max(opts.lags)
+        self.long_lags = sorted(set(opts.lags) - {1})
+        # With long_every > 1 the longer pairs ending at a frame are chosen LONG_DELAY frames later,
+        # once the distance-1 pairs around it are measured: near a failed step they follow the
+        # every-frame schedule (the longer pairs are all that bridges it).
+        self.delay = LONG_DELAY if opts.long_every > 1 and self.long_lags else 0
+        self.window: deque[tuple[int, Future[FrameFeatures]]] = deque(maxlen=self.max_lag + self.delay + 1)
+        self.steps: dict[int, Future] = {}  # j -> the distance-1 pair (j - 1, j)
+        self.pending: list[Future] = []
+        self.pairs: list[tuple[int, int, PairRotation]] = []
+        self.matches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self.pool = ThreadPoolExecutor(max_workers=max(1, opts.threads))
+
+    def __enter__(self) -> _PairScheduler:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.pool.shutdown(wait=True)
+
+    def add(self, k: int, image: np.ndarray, K: np.ndarray) -> None:
+        """Frame ``k``'s grey work image: its keypoints, its pair with frame k - 1, the longer
+        pairs now due."""
+        # Keypoints in the pool too: decoding (the caller) overlaps detection and matching (here).
+        feats = self.pool.submit(self._features_job, image)
+        if self.window:
+            j, fj = self.window[-1]
+            self.steps[k] = self.pool.submit(self._pair_job, j, fj, k, feats, K)
+            self.pending.append(self.steps[k])
+        self.window.append((k, feats))
+        if k - self.delay >= self.window[0][0]:
+            self._schedule_long(k - self.delay, K)
+        if len(self.pending) > 8:
+            self._collect(f.result() for f in self.pending[:-4])
+            self.pending = self.pending[-4:]
+
+    def finish(self, K: np.ndarray) -> None:
+        """The longer pairs of the last frames (still to be chosen), then every result."""
+        if self.window:
+            last = self.window[-1][0]
+            for t in range(max(self.window[0][0], last - self.delay + 1), last + 1):
+                self._schedule_long(t, K)
+        self._collect(f.result() for f in self.pending)
+
+    def _features_job(self, image: np.ndarray) -> FrameFeatures:
         # One extractor per worker thread (OpenCV's detectors keep state between calls).
-        ex = getattr(local, "extractor", None)
+        ex = getattr(self.local, "extractor", None)
         if ex is None:
-            ex = local.extractor = FeatureExtractor(opts.features, opts.n_features)
+            ex = self.local.extractor = FeatureExtractor(self.opts.features, self.opts.n_features)
         return ex(image)
 
-    def pair_job(i: int, ffi: Future[FrameFeatures], j: int, ffj: Future[FrameFeatures], K: np.ndarray):
+    def _pair_job(self, i: int, ffi: Future[FrameFeatures], j: int, ffj: Future[FrameFeatures], K: np.ndarray):
         # The features of both frames were submitted before this job, so they are running or
         # done in another worker (first in, first out): waiting here cannot deadlock.
+        opts = self.opts
         fi, fj = ffi.result(), ffj.result()
-        pi, pj = matcher(fi, fj)
+        pi, pj = self.matcher(fi, fj)
         images = (fi.image, fj.image) if opts.refine else None
         found = correspondences(pi, pj, K, threshold_px=opts.threshold_px, images=images)
         if found is None:
@@ -211,68 +259,34 @@ def collect_pairs(
         keep = found if j < opts.keep_matches else None
         return i, j, rotation_from_correspondences(*found, K, threshold_px=opts.threshold_px), keep
 
-    def collect(results) -> None:
+    def _collect(self, results) -> None:
         for i, j, p, keep in results:
-            pairs.append((i, j, p))
+            self.pairs.append((i, j, p))
             if keep is not None:
-                matches[(i, j)] = keep
+                self.matches[(i, j)] = keep
 
-    def failed_near(t: int) -> bool:
+    def _failed_near(self, t: int) -> bool:
         """Whether a distance-1 pair among the steps a longer pair ending at ``t`` can span failed."""
-        for s in range(t - max_lag + 1, t + 1):
-            f = steps.get(s)
+        for s in range(t - self.max_lag + 1, t + 1):
+            f = self.steps.get(s)
             if f is not None and not f.result()[2].ok:
                 return True
         return False
 
-    def schedule_long(t: int) -> None:
+    def _schedule_long(self, t: int, K: np.ndarray) -> None:
         """Submit the longer pairs ending at frame ``t`` (its features and its partners' are in
-        ``window``)."""
-        feats_of = dict(window)
+        the window)."""
+        feats_of = dict(self.window)
         # Pairs whose matches are kept serve a focal-length fit, which needs pairs that turn
         # enough (the longer ones do most): there, every frame gets its longer pair.
-        every = opts.long_every if t >= opts.keep_matches else 1
-        if every > 1 and failed_near(t):
+        every = self.opts.long_every if t >= self.opts.keep_matches else 1
+        if every > 1 and self._failed_near(t):
             every = 1
-        for lag in long_lags:
-            if t - lag in feats_of and _scheduled(t - lag, lag, long_lags, every):
-                pending.append(pool.submit(pair_job, t - lag, feats_of[t - lag], t, feats_of[t], work.K))
-        for s in [s for s in steps if s <= t - max_lag]:
-            del steps[s]
-
-    pool = ThreadPoolExecutor(max_workers=max(1, opts.threads))
-    try:
-        pending = []
-        for frame in iter_frames(video, gray=True, scale=scale if scale < 1.0 else None, max_frames=opts.max_frames):
-            if frame.image.shape[1] != work.width or frame.image.shape[0] != work.height:
-                # FFmpeg may round the scaled size differently; follow the actual image.
-                work = intr.scaled(frame.image.shape[1] / intr.width)
-            # Keypoints in the pool too: decoding (here) overlaps detection and matching (there).
-            feats = pool.submit(features_job, frame.image)
-            k = frame.index
-            if window:
-                j, fj = window[-1]
-                steps[k] = pool.submit(pair_job, j, fj, k, feats, work.K)
-                pending.append(steps[k])
-            window.append((k, feats))
-            if k - delay >= window[0][0]:
-                schedule_long(k - delay)
-            times.append(frame.time)
-            if len(pending) > 8:
-                collect(f.result() for f in pending[:-4])
-                pending = pending[-4:]
-            if progress is not None:
-                progress(k + 1, info.frame_count)
-        if window:  # the frames whose longer pairs were still to be chosen
-            last = window[-1][0]
-            for t in range(max(window[0][0], last - delay + 1), last + 1):
-                schedule_long(t)
-        collect(f.result() for f in pending)
-    finally:
-        pool.shutdown(wait=True)
-    rank = {lag: r for r, lag in enumerate(opts.lags)}
-    pairs.sort(key=lambda p: (p[1], rank[p[1] - p[0]]))  # by frame, then lag: whatever the schedule
-    return PairSet(np.asarray(times), pairs, work, matches, opts.threshold_px, time.perf_counter() - t_start)
+        for lag in self.long_lags:
+            if t - lag in feats_of and _scheduled(t - lag, lag, self.long_lags, every):
+                self.pending.append(self.pool.submit(self._pair_job, t - lag, feats_of[t - lag], t, feats_of[t], K))
+        for s in [s for s in self.steps if s <= t - self.max_lag]:
+            del self.steps[s]
 
 
 def _import_solver() -> None:
@@ -483,7 +497,7 @@ def estimate_motion(
     ----------
     intrinsics:
         Camera of the full-resolution video (default: :meth:`Intrinsics.default`; see
-        :func:`egovid.core.camera.intrinsics.resolve_camera` for the file's own).
+        :func:`egovid.core.camera.resolve.resolve_camera` for the file's own).
     progress:
         Optional ``progress(frames_done, frames_expected)`` callback.
 

@@ -74,18 +74,6 @@ def kabsch(b_from: np.ndarray, b_to: np.ndarray, weights: np.ndarray | None = No
     return _kabsch_nb(np.ascontiguousarray(b), np.ascontiguousarray(b_to, dtype=np.float64))
 
 
-def rotation_zoom(xi: np.ndarray, xj: np.ndarray, iterations: int = 4, zoom: float = 1.0) -> tuple[np.ndarray, float]:
-    """Rotation Q and zoom s with ``x_i ∝ diag(s, s, 1) Q x_j`` (normalised image points, (N, 3)).
-
-    A camera moving along its optical axis in front of a distant, roughly equidistant scene sees a
-    zoom about the principal point; left in the residuals it biases a pure-rotation fit towards
-    the side with more features. Solved by alternation: Kabsch on de-zoomed bearings, then the
-    least-squares zoom in closed form, starting from ``zoom``.
-    """
-    f64 = np.float64
-    return _rotation_zoom_nb(np.ascontiguousarray(xi, f64), np.ascontiguousarray(xj, f64), int(iterations), float(zoom))
-
-
 def rotation_residuals(Q: np.ndarray, pj: np.ndarray, pi: np.ndarray, K: np.ndarray, zoom: float = 1.0) -> np.ndarray:
     """Pixel distances between frame-i points and frame-j points rotated by ``Q`` (and zoomed by
     ``zoom`` about the principal point) into frame i."""
@@ -297,6 +285,13 @@ def _kabsch_nb(b_from: np.ndarray, b_to: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _rotation_zoom_nb(xi: np.ndarray, xj: np.ndarray, iterations: int, zoom: float) -> tuple[np.ndarray, float]:
+    """Rotation Q and zoom s with ``x_i ∝ diag(s, s, 1) Q x_j`` (normalised image points, (N, 3)).
+
+    A camera moving along its optical axis in front of a distant, roughly equidistant scene sees a
+    zoom about the principal point; left in the residuals it biases a pure-rotation fit towards
+    the side with more features. Solved by alternation: Kabsch on de-zoomed bearings, then the
+    least-squares zoom in closed form, starting from ``zoom``.
+    """
     s = zoom
     Q = np.eye(3)
     bj = _unit_rows(xj)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from egovid.core.rotations import project_to_so3
+from egovid.core.rotations import project_to_so3, so3_log
 
 
 @dataclass
@@ -117,8 +117,6 @@ def optimize(
 
 def residuals(edges: list[Edge], R: np.ndarray) -> np.ndarray:
     """Rotation-vector residuals (len(edges), 3) in radians of ``Log(Q_ij^T R_i^T R_j)``."""
-    from egovid.core.rotations import so3_log
-
     if not edges:
         return np.zeros((0, 3))
     I = np.array([e.i for e in edges])

@@ -16,6 +16,8 @@ Sources (``--source``):
   (GoPro HyperSmooth/EIS): then the body gyro does not describe the picture, and the camera's
   image orientation is used when recorded, vision otherwise. The reason is reported.
 
+Each source is a :class:`MotionSource` in the registry :data:`SOURCES` (what it needs, what vision
+measures for it, how its trajectory is solved); :func:`choose_source` resolves a request.
 With a gyro and no ``--focal/--hfov``, the focal length is fitted from the gyro against the
 matched points (:func:`egovid.core.motion.gyro.fit_focal`), and vision is re-fitted with it.
 """
@@ -29,7 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from egovid.core.camera.intrinsics import CameraModel, resolve_camera
+from egovid.core.camera.resolve import CameraModel, resolve_camera
 from egovid.core.camera.telemetry import CameraTelemetry, read_camera_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.motion import gyro as gyro_mod
@@ -37,6 +39,7 @@ from egovid.core.motion.estimate import (
     CONF_MEASURED,
     MotionEstimate,
     MotionOptions,
+    PairSet,
     collect_pairs,
     refit,
     solve_motion,
@@ -45,8 +48,6 @@ from egovid.core.motion.posegraph import Edge
 from egovid.core.trajectory import Trajectory
 from egovid.core.video import frame_times, probe
 
-#: What ``--source`` accepts.
-SOURCES = ("auto", "vision", "gyro", "fused")
 #: Seconds of video that vision measures to sync a gyro when the gyro alone is the source.
 SYNC_SECONDS = 30.0
 #: A focal-length fit moves the focal length only if it is this much (relative) off.
@@ -118,36 +119,143 @@ class CameraMotion:
         return doc
 
 
+@dataclass
+class _Run:
+    """What :func:`camera_motion` has measured so far, handed from one stage to the next."""
+
+    video: str | os.PathLike
+    source: MotionSource
+    reason: str
+    camera: CameraModel
+    telemetry: CameraTelemetry
+    vopts: MotionOptions
+    full_vision: bool  # vision measures the whole video (else the sync window of a long clip)
+    keep: int  # frames whose matched points are kept for the focal-length fit
+    report: Callable[[str], Callable[[int, int], None] | None]
+    track: gyro_mod.GyroTrack | None = None
+    gyro_track: gyro_mod.GyroTrack | None = None  # the track before any bias was taken off
+    pairs: PairSet | None = None
+    vision: MotionEstimate | None = None
+    sync: gyro_mod.GyroSync | None = None
+    fit: gyro_mod.FocalFit | None = None
+    comparison: gyro_mod.RateComparison | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MotionSource:
+    """One place camera motion can come from (see the module docstring).
+
+    ``needs_gyro``: refused for a file without a gyro; ``whole_vision``: vision is measured on the
+    whole video, as (part of) the answer (else only on the sync window of a long clip);
+    ``orientation``: the sensor track is the camera's recorded image orientation, synced without a
+    gyro bias; ``requestable``: ``--source`` may name it (``camera-orientation`` only comes from
+    ``auto``); ``asked(telemetry)`` the reason when asked for by name; ``solve(run)`` the
+    trajectory and per-frame confidence from the measurements.
+    """
+
+    name: str
+    needs_gyro: bool
+    whole_vision: bool
+    orientation: bool
+    requestable: bool
+    asked: Callable[[CameraTelemetry], str]
+    solve: Callable[[_Run], tuple[Trajectory, np.ndarray]]
+
+    @property
+    def sensor(self) -> bool:
+        """Whether the camera's sensor (gyro or recorded orientation) is part of the answer."""
+        return self.needs_gyro or self.orientation
+
+
+def _camera_name(telemetry: CameraTelemetry) -> str:
+    return " ".join(x for x in (telemetry.make, telemetry.model) if x) or "the camera"
+
+
+def _eis_note(telemetry: CameraTelemetry) -> str:
+    """What to add to a reason when the camera stabilised the picture itself (else nothing)."""
+    if not telemetry.electronically_stabilized:
+        return ""
+    return (
+        f"; note: {_camera_name(telemetry)} stabilised the picture itself ({telemetry.stabilization}), "
+        "so its body gyro does not describe the picture"
+    )
+
+
+def _solve_vision(run: _Run) -> tuple[Trajectory, np.ndarray]:
+    """Vision, its unmeasured steps bridged by the synced gyro where there is one."""
+    vision = run.vision
+    if run.track is not None and run.sync is not None and np.any(vision.confidence < CONF_MEASURED):
+        bridge = gyro_mod.frame_rotations(run.track, run.sync, vision.trajectory.times)
+        run.vision = vision = solve_motion(
+            run.pairs,
+            run.camera.intrinsics,
+            bridge=bridge,
+            calibrate=run.vopts.calibrate,
+            detail_hz=run.vopts.detail_hz,
+        )
+    return vision.trajectory, vision.confidence
+
+
+def _solve_fused(run: _Run) -> tuple[Trajectory, np.ndarray]:
+    """Gyro steps and vision pairs in one pose graph."""
+    times = run.vision.trajectory.times
+    Rg = gyro_mod.frame_rotations(run.track, run.sync, times)
+    gyro_edges = [
+        Edge(k, k + 1, Rg[k].T @ Rg[k + 1], _GYRO_STEP_SIGMA_DEG, group="gyro") for k in range(len(times) - 1)
+    ]
+    fused = solve_motion(run.pairs, run.camera.intrinsics, extra_edges=gyro_edges, calibrate=run.vopts.calibrate)
+    return fused.trajectory, np.maximum(fused.confidence, _coverage(run.track, run.sync, times))
+
+
+def _solve_sensor(run: _Run) -> tuple[Trajectory, np.ndarray]:
+    """The synced sensor track at every frame's time."""
+    times = run.vision.trajectory.times if run.full_vision else frame_times(run.video)
+    Rg = gyro_mod.frame_rotations(run.track, run.sync, times)
+    return Trajectory(times, Rg), _coverage(run.track, run.sync, times)
+
+
+def _asked_gyro(telemetry: CameraTelemetry) -> str:
+    return f"asked for ({_camera_name(telemetry)} gyro, {telemetry.imu.rate_hz:.0f} Hz)" + _eis_note(telemetry)
+
+
+#: The motion sources by name, in the order ``--source`` lists them.
+SOURCES: dict[str, MotionSource] = {
+    s.name: s
+    for s in (
+        MotionSource("vision", False, True, False, True, lambda tel: "asked for", _solve_vision),
+        MotionSource("gyro", True, False, False, True, _asked_gyro, _solve_sensor),
+        MotionSource("fused", True, True, False, True, lambda tel: "asked for" + _eis_note(tel), _solve_fused),
+        MotionSource("camera-orientation", False, False, True, False, lambda tel: "", _solve_sensor),
+    )
+}
+#: What ``--source`` accepts: ``auto`` (see :func:`choose_source`) and the sources asked for by name.
+REQUESTS = ("auto", *(name for name, s in SOURCES.items() if s.requestable))
+
+
 def choose_source(requested: str, telemetry: CameraTelemetry) -> tuple[str, str]:
     """The source to use for ``requested`` given what the file carries, and why (in words).
 
     Raises :class:`EgovidError` when ``gyro`` or ``fused`` is asked of a file without a gyro.
     """
-    if requested not in SOURCES:
-        raise EgovidError(f"unknown motion source {requested!r}", f"choose one of {', '.join(SOURCES)}")
-    has_gyro = telemetry.has_gyro
-    eis = telemetry.electronically_stabilized
-    name = " ".join(x for x in (telemetry.make, telemetry.model) if x) or "the camera"
-    if requested in ("gyro", "fused") and not has_gyro:
+    if requested not in REQUESTS:
+        raise EgovidError(f"unknown motion source {requested!r}", f"choose one of {', '.join(REQUESTS)}")
+    if requested == "auto":
+        return _auto_source(telemetry)
+    source = SOURCES[requested]
+    if source.needs_gyro and not telemetry.has_gyro:
         raise EgovidError(
             f"--source {requested} needs a gyro, and this file records none", "use --source vision (or auto)"
         )
-    if requested == "vision":
-        return "vision", "asked for"
-    if requested == "fused":
-        why = "asked for"
-        if eis:
-            why += _eis_note(name, telemetry)
-        return "fused", why
-    if requested == "gyro":
-        why = f"asked for ({name} gyro, {telemetry.imu.rate_hz:.0f} Hz)"
-        if eis:
-            why += _eis_note(name, telemetry)
-        return "gyro", why
-    # auto
-    if not has_gyro:
+    return requested, source.asked(telemetry)
+
+
+def _auto_source(telemetry: CameraTelemetry) -> tuple[str, str]:
+    """``auto``: the gyro, unless there is none or the camera stabilised the picture itself."""
+    name = _camera_name(telemetry)
+    if not telemetry.has_gyro:
         return "vision", "the file records no gyro"
-    if eis:
+    if telemetry.electronically_stabilized:
         if telemetry.image_orientation is not None:
             return (
                 "camera-orientation",
@@ -160,13 +268,6 @@ def choose_source(requested: str, telemetry: CameraTelemetry) -> tuple[str, str]
             "its body gyro does not describe the picture",
         )
     return "gyro", f"{name} records a gyro ({telemetry.imu.rate_hz:.0f} Hz) and did not stabilise the picture"
-
-
-def _eis_note(name: str, telemetry: CameraTelemetry) -> str:
-    return (
-        f"; note: {name} stabilised the picture itself ({telemetry.stabilization}), "
-        "so its body gyro does not describe the picture"
-    )
 
 
 def camera_motion(
@@ -186,130 +287,133 @@ def camera_motion(
     without one); everything else degrades with a reason.
     """
     t_start = time.perf_counter()
-    opts = options or MotionOptions()
+    run = _start(video, source, focal, hfov, options or MotionOptions(), progress)
+    run.pairs = collect_pairs(video, run.camera.intrinsics, run.vopts, run.report("motion"))
+    run.seconds["vision_pairs"] = run.pairs.seconds
+    run.vision = solve_motion(
+        run.pairs, run.camera.intrinsics, calibrate=run.vopts.calibrate, detail_hz=run.vopts.detail_hz
+    )
+    if run.track is not None:
+        _sync_sensor(run)
+    if run.track is not None and run.camera.source != "flag" and run.pairs.matches:
+        _fit_focal(run)
+    if run.track is not None and run.pairs is not None:
+        run.comparison = gyro_mod.compare_rotations(
+            run.vision.trajectory.R,
+            gyro_mod.frame_rotations(run.track, run.sync, run.vision.trajectory.times),
+            run.vision.confidence[1:],
+        )
+    traj, conf = run.source.solve(run)
+    run.seconds["total"] = time.perf_counter() - t_start
+    return CameraMotion(
+        trajectory=traj,
+        confidence=conf,
+        source=run.source.name,
+        requested=source,
+        reason=run.reason,
+        camera=run.camera,
+        telemetry=run.telemetry,
+        sync=run.sync,
+        focal_fit=run.fit,
+        comparison=run.comparison,
+        vision=run.vision if run.full_vision else None,
+        seconds=run.seconds,
+    )
+
+
+def _start(
+    video: str | os.PathLike,
+    requested: str,
+    focal: float | None,
+    hfov: float | None,
+    opts: MotionOptions,
+    progress: Progress | None,
+) -> _Run:
+    """Read what the file says (size, telemetry, intrinsics), choose the source, and plan the
+    vision pass and the sensor track."""
     info = probe(video)
     try:
         telemetry = read_camera_telemetry(video)
     except EgovidError:
         telemetry = CameraTelemetry()
-    chosen, reason = choose_source(source, telemetry)
+    chosen, reason = choose_source(requested, telemetry)
+    source = SOURCES[chosen]
     camera = resolve_camera(video, focal, hfov, telemetry=telemetry)
-    user_focal = camera.source == "flag"
-    report = _stage(progress)
     # The body gyro helps vision too (focal-length fit, bridging gaps), unless the camera
     # stabilised the picture itself: then it does not describe the picture.
-    uses_gyro = telemetry.has_gyro and (chosen in ("gyro", "fused") or not telemetry.electronically_stabilized)
-    if chosen == "camera-orientation":
+    uses_gyro = telemetry.has_gyro and (source.needs_gyro or not telemetry.electronically_stabilized)
+    if source.orientation:
         track = gyro_mod.orientation_track(telemetry.image_orientation)
     elif uses_gyro:
         track = gyro_mod.integrate(telemetry.imu)
     else:
         track = None
-    seconds: dict[str, float] = {}
-
-    # Vision: on the whole video, except for a gyro-only source on a long clip (sync window).
-    full_vision = chosen in ("vision", "fused") or info.duration <= SYNC_SECONDS * 1.5 or info.duration <= 0
+    # Vision: on the whole video, except for a sensor-only source on a long clip (sync window).
+    full_vision = source.whole_vision or info.duration <= SYNC_SECONDS * 1.5 or info.duration <= 0
     window = None if full_vision else max(2, int(SYNC_SECONDS * info.fps))
     # Matched points are kept for the focal-length fit, over at most 1.5 x the sync window (so a
     # short clip is re-fitted without decoding it again; a long one is decoded twice).
+    user_focal = camera.source == "flag"
     keep = 0 if track is None or user_focal else int(SYNC_SECONDS * 1.5 * max(info.fps, 1.0)) + max(opts.lags)
     vopts = MotionOptions(**{**opts.__dict__, "keep_matches": keep, "max_frames": window})
-    pairs = collect_pairs(video, camera.intrinsics, vopts, report("motion"))
-    seconds["vision_pairs"] = pairs.seconds
-    vision = solve_motion(pairs, camera.intrinsics, calibrate=vopts.calibrate, detail_hz=vopts.detail_hz)
+    return _Run(video, source, reason, camera, telemetry, vopts, full_vision, keep, _stage(progress), track, track)
 
-    sync = fit = comparison = None
-    gyro_track = track
-    if track is not None:
-        t0 = time.perf_counter()
-        sync = _sync(track, vision, chosen == "camera-orientation")
-        if not sync.trusted:
-            if chosen in ("gyro", "camera-orientation", "fused"):
-                reason += f"; but the gyro does not match the picture (r = {sync.r_vector:.2f}), so vision is used"
-                chosen = "vision"
-            track = sync = None
-        elif chosen != "camera-orientation":
-            track = gyro_mod.integrate(telemetry.imu, bias=sync.bias)
-        seconds["sync"] = time.perf_counter() - t0
-    if track is not None and not user_focal and pairs.matches:
-        before = camera
-        for attempt in range(2):  # vision angles are nearly, not exactly, proportional to 1/focal
-            step = gyro_mod.fit_focal(
-                [(i, j, p.Q) for i, j, p in pairs.pairs if p.ok],
-                gyro_mod.frame_rotations(track, sync, vision.trajectory.times),
-                camera.intrinsics.focal,
-            )
-            if attempt == 0:
-                fit = step
-            if not step.well_posed or abs(step.scale - 1.0) <= _REFIT_TOLERANCE:
-                break
-            previous = camera
-            camera = before.with_focal(
-                step.focal_px,
-                "gyro-fit",
-                f"fitted from the gyro on {step.pairs} frame pairs (the {before.source} gave "
-                f"{before.intrinsics.focal:.1f} px: {before.detail})",
-            )
-            if len(pairs.times) <= keep:  # every pair's matches are kept: re-fit them (cheap)
-                pairs = refit(pairs, previous.intrinsics, step.focal_px)
-            elif chosen in ("vision", "fused") and attempt == 0:  # a long clip: measure it again
-                pairs = collect_pairs(video, camera.intrinsics, vopts, report("motion (refit)"))
-            else:
-                pairs = None
-                break
-            vision = solve_motion(pairs, camera.intrinsics, calibrate=vopts.calibrate, detail_hz=vopts.detail_hz)
-            sync = _sync(gyro_track, vision, chosen == "camera-orientation")
-            if chosen != "camera-orientation":
-                track = gyro_mod.integrate(telemetry.imu, bias=sync.bias)
-        if fit is not None and fit.well_posed:
-            fit = replace(fit, focal_px=camera.intrinsics.focal)
-            if camera is before:
-                camera = camera.with_focal(
-                    camera.intrinsics.focal, camera.source, camera.detail + "; confirmed by the gyro"
-                )
-    if track is not None and pairs is not None:
-        comparison = gyro_mod.compare_rotations(
-            vision.trajectory.R, gyro_mod.frame_rotations(track, sync, vision.trajectory.times), vision.confidence[1:]
+
+def _sync_sensor(run: _Run) -> None:
+    """Sync the sensor track to vision; an untrusted sync drops the sensor (vision is used)."""
+    t0 = time.perf_counter()
+    run.sync = _sync(run.track, run.vision, run.source.orientation)
+    if not run.sync.trusted:
+        if run.source.sensor:
+            run.reason += f"; but the gyro does not match the picture (r = {run.sync.r_vector:.2f}), so vision is used"
+            run.source = SOURCES["vision"]
+        run.track = run.sync = None
+    elif not run.source.orientation:
+        run.track = gyro_mod.integrate(run.telemetry.imu, bias=run.sync.bias)
+    run.seconds["sync"] = time.perf_counter() - t0
+
+
+def _fit_focal(run: _Run) -> None:
+    """Fit the focal length from the gyro against vision's matched points, re-fit vision with it
+    and sync again (at most twice); the fit confirms the file's focal length when it holds."""
+    before = camera = run.camera
+    for attempt in range(2):  # vision angles are nearly, not exactly, proportional to 1/focal
+        step = gyro_mod.fit_focal(
+            [(i, j, p.Q) for i, j, p in run.pairs.pairs if p.ok],
+            gyro_mod.frame_rotations(run.track, run.sync, run.vision.trajectory.times),
+            camera.intrinsics.focal,
         )
-
-    # The chosen source's trajectory.
-    if chosen == "vision":
-        bridge = None
-        if track is not None and sync is not None and np.any(vision.confidence < CONF_MEASURED):
-            bridge = gyro_mod.frame_rotations(track, sync, vision.trajectory.times)
-            vision = solve_motion(
-                pairs, camera.intrinsics, bridge=bridge, calibrate=vopts.calibrate, detail_hz=vopts.detail_hz
+        if attempt == 0:
+            run.fit = step
+        if not step.well_posed or abs(step.scale - 1.0) <= _REFIT_TOLERANCE:
+            break
+        previous = camera
+        camera = before.with_focal(
+            step.focal_px,
+            "gyro-fit",
+            f"fitted from the gyro on {step.pairs} frame pairs (the {before.source} gave "
+            f"{before.intrinsics.focal:.1f} px: {before.detail})",
+        )
+        if len(run.pairs.times) <= run.keep:  # every pair's matches are kept: re-fit them (cheap)
+            run.pairs = refit(run.pairs, previous.intrinsics, step.focal_px)
+        elif run.source.whole_vision and attempt == 0:  # a long clip: measure it again
+            run.pairs = collect_pairs(run.video, camera.intrinsics, run.vopts, run.report("motion (refit)"))
+        else:
+            run.pairs = None
+            break
+        run.vision = solve_motion(
+            run.pairs, camera.intrinsics, calibrate=run.vopts.calibrate, detail_hz=run.vopts.detail_hz
+        )
+        run.sync = _sync(run.gyro_track, run.vision, run.source.orientation)
+        if not run.source.orientation:
+            run.track = gyro_mod.integrate(run.telemetry.imu, bias=run.sync.bias)
+    if run.fit is not None and run.fit.well_posed:
+        run.fit = replace(run.fit, focal_px=camera.intrinsics.focal)
+        if camera is before:
+            camera = camera.with_focal(
+                camera.intrinsics.focal, camera.source, camera.detail + "; confirmed by the gyro"
             )
-        traj, conf = vision.trajectory, vision.confidence
-    elif chosen == "fused":
-        times = vision.trajectory.times
-        Rg = gyro_mod.frame_rotations(track, sync, times)
-        gyro_edges = [
-            Edge(k, k + 1, Rg[k].T @ Rg[k + 1], _GYRO_STEP_SIGMA_DEG, group="gyro") for k in range(len(times) - 1)
-        ]
-        fused = solve_motion(pairs, camera.intrinsics, extra_edges=gyro_edges, calibrate=vopts.calibrate)
-        traj = fused.trajectory
-        conf = np.maximum(fused.confidence, _coverage(track, sync, times))
-    else:  # gyro or camera-orientation
-        times = vision.trajectory.times if full_vision else frame_times(video)
-        Rg = gyro_mod.frame_rotations(track, sync, times)
-        traj = Trajectory(times, Rg)
-        conf = _coverage(track, sync, times)
-    seconds["total"] = time.perf_counter() - t_start
-    return CameraMotion(
-        trajectory=traj,
-        confidence=conf,
-        source=chosen,
-        requested=source,
-        reason=reason,
-        camera=camera,
-        telemetry=telemetry,
-        sync=sync,
-        focal_fit=fit,
-        comparison=comparison,
-        vision=vision if full_vision else None,
-        seconds=seconds,
-    )
+    run.camera = camera
 
 
 def _sync(track: gyro_mod.GyroTrack, vision: MotionEstimate, orientation: bool) -> gyro_mod.GyroSync:

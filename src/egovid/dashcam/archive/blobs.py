@@ -20,12 +20,15 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import tempfile
+import uuid
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from egovid.core.errors import EgovidError
+from egovid.core.files import atomic_write_bytes
 
 _SHA = re.compile(r"[0-9a-f]{64}")
 _RESTORE = "restore the archive from a backup"
@@ -62,8 +65,6 @@ class BlobStore(ABC):
 
     def put_chunks(self, chunks: Iterable[bytes]) -> str:
         """Store a blob given as pieces (streamed: it need not fit in memory); returns its name."""
-        import tempfile
-
         h = hashlib.sha256()
         with tempfile.TemporaryFile() as tmp:
             for c in chunks:
@@ -137,8 +138,6 @@ class LocalBlobs(BlobStore):
         return self._path(sha).exists()
 
     def _write(self, sha: str, data: bytes) -> None:
-        from egovid.core.files import atomic_write_bytes
-
         path = self._path(sha)
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(path, data)
@@ -146,8 +145,6 @@ class LocalBlobs(BlobStore):
     def put_chunks(self, chunks: Iterable[bytes]) -> str:
         """Write the pieces to a temporary file in the store (hashing as they come), flush it to
         disk and rename it to its name: memory stays flat, a crash leaves only a ``.part`` file."""
-        import uuid
-
         self.folder.mkdir(parents=True, exist_ok=True)
         tmp = self.folder / f".incoming.part-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         h = hashlib.sha256()
@@ -205,7 +202,7 @@ class FsspecBlobs(BlobStore):
     (for S3: AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY, AWS_ENDPOINT_URL, AWS_REGION)."""
 
     def __init__(self, url: str) -> None:
-        import fsspec
+        import fsspec  # only archives with their bitstreams in an object store need it (and s3fs)
 
         self.url = url.rstrip("/")
         options = _s3_options() if url.startswith("s3://") else {}

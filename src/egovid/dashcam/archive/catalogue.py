@@ -7,7 +7,8 @@ its own in a PostgreSQL database, a GiST index over the same chunk boxes), for a
 several machines. :func:`open_catalogue` picks one from the archive's settings. Every ingest runs
 inside one :meth:`Catalogue.transaction`, which also serialises writers, so a crash or an error
 leaves the catalogue as it was. Arrays (path points, per-frame path positions, alignment maps) are
-stored as little-endian binary blobs.
+stored as little-endian binary blobs. The SQLite file is checked before anything may write to it,
+and backed up after every commit (:mod:`egovid.dashcam.archive.catalogue_file`).
 
 Records:
 
@@ -35,7 +36,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from egovid.core.errors import EgovidError
+from egovid.core.errors import EgovidError, user_error
+from egovid.dashcam.archive import catalogue_file
+from egovid.dashcam.archive.catalogue_file import catalogue_problem, sqlite_uri, unusable_catalogue
+from egovid.dashcam.archive.postgres import pg_connect, reason, redact_url
 
 SCHEMA_VERSION = 1
 
@@ -456,28 +460,26 @@ class SqliteCatalogue(_SqlCatalogue):
     _NEAR = "SELECT DISTINCT path_id FROM path_index WHERE max_x >= ? AND max_y >= ? AND min_x <= ? AND min_y <= ?"
 
     def __init__(self, path: str | Path, *, create: bool = False) -> None:
-        from egovid.dashcam import check as integrity
-
         self.file = Path(path)
         self._saved = -1  # total_changes when the backup was last written
         if not create and not self.file.exists():  # never a fresh empty catalogue beside old blobs
-            raise integrity.unusable_catalogue(self.file, "missing")
+            raise unusable_catalogue(self.file, "missing")
         if not create and self.file.stat().st_size == 0:  # SQLite would take it for a new database
-            raise integrity.unusable_catalogue(self.file, "empty (0 bytes)")
+            raise unusable_catalogue(self.file, "empty (0 bytes)")
         try:
-            uri = integrity.sqlite_uri(self.file, "rwc" if create else "rw")
+            uri = sqlite_uri(self.file, "rwc" if create else "rw")
             self._db = sqlite3.connect(uri, uri=True, isolation_level=None, timeout=30.0)
             self._db.execute("PRAGMA foreign_keys = ON")
             # checked before anything that may write (the journal mode): a damaged file stays as it is
-            problem = None if create else integrity.catalogue_problem(self._db, SCHEMA_VERSION)
+            problem = None if create else catalogue_problem(self._db, SCHEMA_VERSION)
             if problem is None:
                 self._db.execute("PRAGMA journal_mode = WAL")
                 self._db.execute("PRAGMA synchronous = FULL")
         except sqlite3.DatabaseError as exc:
-            raise integrity.unusable_catalogue(self.file, f"damaged ({exc})") from None
+            raise unusable_catalogue(self.file, f"damaged ({exc})") from None
         if problem is not None:
             self._db.close()
-            raise integrity.unusable_catalogue(self.file, problem)
+            raise unusable_catalogue(self.file, problem)
         if create:
             with self.transaction():
                 for stmt in self._ddl():
@@ -488,17 +490,13 @@ class SqliteCatalogue(_SqlCatalogue):
     def _committed(self) -> None:
         """Copy the catalogue to its backup after a commit that changed it (``check --repair``
         restores a damaged or deleted catalogue from it)."""
-        from egovid.dashcam.check import backup_path, write_backup
-
         if self._db.total_changes != self._saved:
             try:
-                write_backup(self._db, self.file)
+                self.write_backup()
             except BaseException as exc:  # a full disk, say: no backup rather than one silently behind
-                backup_path(self.file).unlink(missing_ok=True)
+                catalogue_file.backup_path(self.file).unlink(missing_ok=True)
                 if not isinstance(exc, OSError | sqlite3.Error):
                     raise
-                from egovid.core.errors import user_error
-
                 why = user_error(exc)
                 raise EgovidError(
                     "the change is saved in the catalogue, but its backup could not be written "
@@ -506,6 +504,35 @@ class SqliteCatalogue(_SqlCatalogue):
                     f"free some space, then run `egovid dashcam check {self.file.parent} --repair` to write it",
                 ) from exc
             self._saved = self._db.total_changes
+
+    # -- upkeep (``egovid dashcam check``) ------------------------------------------------------
+    def write_backup(self) -> Path:
+        """Copy the catalogue to its backup file now (:func:`catalogue_file.write_backup`)."""
+        return catalogue_file.write_backup(self._db, self.file)
+
+    def has_backup(self) -> bool:
+        return catalogue_file.backup_path(self.file).exists()
+
+    def dangling_rows(self) -> list[tuple]:
+        """Rows that refer to rows that do not exist (SQLite's foreign-key check: table first)."""
+        return self._db.execute("PRAGMA foreign_key_check").fetchall()
+
+    def spatial_index_sound(self) -> bool:
+        """True when the R*Tree over the path chunks is intact and indexes exactly the paths."""
+        try:
+            if self._db.execute("SELECT rtreecheck('path_index')").fetchone()[0] != "ok":
+                return False
+            indexed = {r[0] for r in self._q("SELECT DISTINCT path_id FROM path_index")}
+        except sqlite3.DatabaseError:
+            return False
+        return indexed == {p.id for p in self.paths()}
+
+    def rebuild_spatial_index(self) -> None:
+        """Index every path again, from its points (one transaction)."""
+        with self.transaction():
+            self._q("DELETE FROM path_index")
+            for p in self.paths():
+                self._index_path(p.id, p.points)
 
     def _begin(self) -> None:
         self._db.execute("BEGIN IMMEDIATE")  # takes the write lock now: one ingest at a time
@@ -570,38 +597,18 @@ CREATE INDEX IF NOT EXISTS path_index_box ON path_index USING gist (box(point(mi
         self._db.execute("SELECT pg_advisory_xact_lock(hashtext(%s))", (self.schema,))
 
     def _q(self, sql: str, args=()):
-        import psycopg
+        import psycopg  # only archives kept in PostgreSQL need it
 
         try:
             return self._db.execute(sql.replace("?", "%s"), args)
         except psycopg.OperationalError as e:  # the server went away or refused mid-way
-            why = (str(e).strip().splitlines() or ["no reason given"])[-1]
             raise EgovidError(
-                f"lost the PostgreSQL catalogue at {redact_url(self.url)}: {why}",
+                f"lost the PostgreSQL catalogue at {redact_url(self.url)}: {reason(e)}",
                 "check the server and run the command again (an interrupted ingest changed nothing)",
             ) from None
 
     def close(self) -> None:
         self._db.close()
-
-
-def pg_connect(url: str):
-    """An autocommit psycopg connection to ``url``, or one :class:`EgovidError` saying why not."""
-    import psycopg
-
-    try:
-        return psycopg.connect(url, autocommit=True, connect_timeout=10)
-    except psycopg.Error as e:
-        why = (str(e).strip().splitlines() or ["no reason given"])[-1]
-        raise EgovidError(
-            f"cannot connect to the PostgreSQL catalogue at {redact_url(url)}: {why}",
-            "check the URL, that the server is running, and the credentials (PGPASSWORD or ~/.pgpass)",
-        ) from None
-
-
-def redact_url(url: str) -> str:
-    """``url`` with any password replaced by ``***`` (for messages)."""
-    return re.sub(r"(://[^:/@]*:)[^@]*@", r"\1***@", url)
 
 
 def catalogue_settings(db: str | None) -> dict:

@@ -21,13 +21,14 @@ first time an archive is opened by an egovid that has them, so archives made bef
 from __future__ import annotations
 
 import json
+import os
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from egovid.core.errors import EgovidError
 from egovid.dashcam.archive.catalogue import Catalogue, Drive, PostgresCatalogue, Segment, SqliteCatalogue, _arr, _blob
-from egovid.dashcam.retention import ForgetPlan
 
 FLEET_SCHEMA = 1
 CHUNK = 32  # fixes per spatial-index entry
@@ -98,6 +99,24 @@ def hidden_drive_ids(cat: Catalogue) -> set[int]:
     if cat.get_meta("fleet_schema") is None:
         return set()
     return {int(r[0]) for r in cat._q("SELECT drive_id FROM drive_meta WHERE state <> 'live'")}
+
+
+def live_drives(cat: Catalogue) -> list[Drive]:
+    """The drives a user sees: every drive but the hidden references of forgotten ones (read
+    only: the fleet tables are not created)."""
+    hidden = hidden_drive_ids(cat)
+    return [d for d in cat.drives() if d.id not in hidden]
+
+
+def live_drive(cat: Catalogue, key: str, where: str | os.PathLike = "the archive") -> Drive:
+    """A live drive by name or id; :class:`EgovidError` naming the live drives if there is none
+    (``where``: the archive, for the message)."""
+    d = cat.drive(key)
+    hidden = hidden_drive_ids(cat)
+    if d is None or d.id in hidden:
+        names = ", ".join(x.name for x in cat.drives() if x.id not in hidden) or "none"
+        raise EgovidError(f"no drive {key!r} in {where}", f"drives in the archive: {names}")
+    return d
 
 
 class FleetStore:
@@ -222,13 +241,7 @@ class FleetStore:
                 float(t[sl].min()),
                 float(t[sl].max()),
             )
-            if self.backend == "sqlite":
-                self._q(
-                    "INSERT INTO track_index(min_lon, max_lon, min_lat, max_lat, min_t, max_t, drive_id) "
-                    "VALUES(?,?,?,?,?,?,?)",
-                    (*box, drive_id),
-                )
-            elif self.postgis:
+            if self.postgis:  # the chunk's line too, for ST_DWithin on the server
                 pts = list(zip(lon[sl].tolist(), lat[sl].tolist(), strict=True))
                 if len(pts) == 1:
                     pts.append(pts[0])
@@ -292,9 +305,6 @@ class FleetStore:
     def set_lock(self, drive_id: int, locked: bool, note: str | None = None) -> None:
         self._q("UPDATE drive_meta SET locked = ?, lock_note = ? WHERE drive_id = ?", (int(locked), note, drive_id))
 
-    def set_state(self, drive_id: int, state: str) -> None:
-        self._q("UPDATE drive_meta SET state = ? WHERE drive_id = ?", (state, drive_id))
-
     # -- queries --------------------------------------------------------------------------------
     def candidates(
         self,
@@ -332,17 +342,12 @@ class FleetStore:
         return sorted(int(r[0]) for r in self._q(sql, args))
 
     def live_drives(self) -> list[Drive]:
-        """The drives a user sees: every drive but the hidden references of forgotten ones."""
-        hidden = hidden_drive_ids(self.cat)
-        return [d for d in self.cat.drives() if d.id not in hidden]
+        """The drives a user sees (:func:`live_drives`)."""
+        return live_drives(self.cat)
 
     def live_drive(self, key: str) -> Drive:
-        """A live drive by name or id; :class:`EgovidError` naming the drives there are if none."""
-        d = self.cat.drive(key)
-        if d is None or self.meta(d.id).state != "live":
-            names = ", ".join(x.name for x in self.live_drives()) or "none"
-            raise EgovidError(f"no drive {key!r} in the archive", f"drives in the archive: {names}")
-        return d
+        """A live drive by name or id (:func:`live_drive`)."""
+        return live_drive(self.cat, key)
 
     def streams_bytes(self, exclude: set[int] | None = None) -> int:
         """Bytes of the audio/telemetry blobs of all drives but ``exclude``."""
@@ -351,17 +356,25 @@ class FleetStore:
 
     # -- deletion -------------------------------------------------------------------------------
     def apply_forget(
-        self, plan: ForgetPlan, targets: set[int], drives: dict[int, Drive], trimmed: dict[int, list[Segment]]
+        self,
+        *,
+        forgotten: Iterable[int],
+        delete_segments: Iterable[int],
+        trimmed: dict[int, list[Segment]],
+        hide: Iterable[int],
+        purge: Iterable[int],
     ) -> None:
-        """Carry out a retention plan in the open transaction: delete the segments it drops, replace
-        the ones it trims by ``trimmed`` (segment id -> the new segments, blobs already stored),
-        delete the sequences of every forgotten drive (so no new drive is coded against them), purge
-        the drives nothing needs, hide the others (renamed ``NAME~forgotten-ID``)."""
+        """Carry out a retention plan (:class:`egovid.dashcam.retention.ForgetPlan`) in the open
+        transaction: delete ``delete_segments``, replace the trimmed ones by ``trimmed`` (segment id
+        -> the new segments, blobs already stored), delete the sequences of every drive forgotten,
+        hidden or purged (so no new drive is coded against them), hide the drives ``hide`` (kept as
+        references; renamed ``NAME~forgotten-ID``) and purge the drives ``purge`` nothing needs."""
         q = self._q
-        gone = targets | set(plan.keep_as_reference) | set(plan.purge_drives)
+        hide, purge = list(hide), list(purge)
+        gone = set(forgotten) | set(hide) | set(purge)
         for i in gone:
             q("DELETE FROM sequences WHERE drive_id = ?", (i,))
-        for sid in [*plan.delete_segments, *trimmed]:
+        for sid in [*delete_segments, *trimmed]:
             q("DELETE FROM segments WHERE id = ?", (sid,))
         for news in trimmed.values():
             for t in news:
@@ -369,28 +382,13 @@ class FleetStore:
                                      t.align, t.blob, t.bytes, t.params)  # fmt: skip
         for i in gone:
             q("UPDATE drive_meta SET streams_blob = NULL, streams_bytes = 0 WHERE drive_id = ?", (i,))
-        for i in plan.keep_as_reference:
+        for i in hide:
             if self.meta(i).state == "live":
                 q("UPDATE drive_meta SET state = 'reference' WHERE drive_id = ?", (i,))
-                q("UPDATE drives SET name = ? WHERE id = ?", (f"{drives[i].name}~forgotten-{i}", i))
-        for i in plan.purge_drives:
+                q("UPDATE drives SET name = name || ? WHERE id = ?", (f"~forgotten-{i}", i))
+        for i in purge:
             for table in ("track_index", "drive_tracks", "drive_parts", "drive_meta"):
                 q(f"DELETE FROM {table} WHERE drive_id = ?", (i,))
             q("UPDATE paths SET created_by = NULL WHERE created_by = ?", (i,))
             q("DELETE FROM meta WHERE key LIKE 'ingest:%' AND value = ?", (str(i),))
             q("DELETE FROM drives WHERE id = ?", (i,))
-
-
-def extract_extras(archive, drive: Drive) -> dict:
-    """What ``extract`` adds from the fleet tables: the source's colour tags and the archived audio
-    and telemetry (keyword arguments of :func:`egovid.dashcam.extract.extract_video`)."""
-    cat = archive.catalogue
-    if cat.get_meta("fleet_schema") is None:
-        return {}
-    from egovid.core.video import ColourTags
-
-    m = FleetStore(cat).meta(drive.id)
-    return {
-        "colour": ColourTags(**m.colour) if m.colour else None,
-        "streams": archive.blobs.get(m.streams_blob) if m.streams_blob else None,
-    }

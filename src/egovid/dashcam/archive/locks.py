@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.dashcam.archive.postgres import pg_connect
 
 CELL = 250.0  # metres: side of an area-lock square
 FILE_LOCKS = 256  # lock files an SQLite archive's areas are hashed onto
@@ -227,14 +228,9 @@ class PgLocks(ArchiveLocks):
     def __init__(self, url: str, schema: str) -> None:
         self.url, self.schema = url, schema
 
-    def _connect(self):
-        from egovid.dashcam.archive.catalogue import pg_connect
-
-        return pg_connect(self.url)
-
     @contextlib.contextmanager
     def ingest(self, on_wait: Callable[[str], None] | None = None) -> Iterator[AreaSession]:
-        db = self._connect()
+        db = pg_connect(self.url)
         try:
             db.execute("SELECT pg_advisory_lock_shared(%s)", (_pg_key(self.schema, ".archive"),))
             session = _PgSession(db, self.schema, on_wait)
@@ -247,7 +243,7 @@ class PgLocks(ArchiveLocks):
 
     @contextlib.contextmanager
     def maintenance(self, what: str) -> Iterator[None]:
-        db = self._connect()
+        db = pg_connect(self.url)
         try:
             got = db.execute("SELECT pg_try_advisory_lock(%s)", (_pg_key(self.schema, ".archive"),)).fetchone()[0]
             if not got:

@@ -7,6 +7,7 @@ Layout of an archive folder::
     ARCHIVE/catalogue.sqlite      drives, paths, sequences, segments, the metric plane's origin
                                   (see catalogue.py); with ``init --db postgresql://…`` these live
                                   in a PostgreSQL schema instead
+    ARCHIVE/catalogue.sqlite.backup  its copy after every commit (see catalogue_file.py)
     ARCHIVE/blobs/ab/abcdef...    segment bitstreams, named by their SHA-256; with
                                   ``init --blobs s3://BUCKET/PREFIX`` they live in an object store
     ARCHIVE/.lock, .locks/        file locks (see locks.py); advisory locks with PostgreSQL
@@ -30,6 +31,7 @@ from egovid.core.files import atomic_write_text, temp_sibling, track_temp, untra
 from egovid.dashcam.archive.blobs import BlobFile, BlobStore, FsspecBlobs, open_blobs
 from egovid.dashcam.archive.catalogue import Catalogue, Drive, Segment, catalogue_settings, open_catalogue
 from egovid.dashcam.archive.locks import ArchiveLocks, FileLocks, PgLocks
+from egovid.dashcam.archive.postgres import redact_url
 
 MARKER = "egovid-archive.json"
 FORMAT_VERSION = 1
@@ -121,6 +123,15 @@ class Archive:
         return cls(spec.root, spec.meta)
 
     # -- reading ------------------------------------------------------------------------------
+    @property
+    def where(self) -> str:
+        """Where the catalogue lives, for people: ``SQLite``, or ``PostgreSQL URL, schema NAME``
+        (the URL's password hidden)."""
+        cat = self.meta.get("catalogue") or {"backend": "sqlite"}
+        if cat.get("backend", "sqlite") == "sqlite":
+            return "SQLite"
+        return f"PostgreSQL {redact_url(cat['url'])}, schema {cat['schema']}"
+
     @property
     def origin(self) -> tuple[float, float] | None:
         """(latitude, longitude) degrees of the metric plane's origin; None before the first drive.

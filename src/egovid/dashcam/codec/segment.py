@@ -1,4 +1,8 @@
-"""Segment bitstreams: VP9 with the older drive's aligned frames as a free reference (§14.2).
+"""Segment bitstreams: the container every codec backend writes (header, random-access run
+layout, length-prefixed packets; the magic names the codec: ``EGV9`` VP9, ``EGA1`` AV1, see
+:mod:`egovid.dashcam.codec.registry`), the writer they share (:class:`SegmentWriter`: digests,
+PSNR, spool), and the VP9 backend: VP9 with the older drive's aligned frames as a free reference
+(§14.2). The AV1 backend is :mod:`egovid.dashcam.codec.av1`.
 
 A *segment* is a run of a drive's frames coded as one VP9 stream: **intra** (a root, a plain VP9
 stream) or **joint** (every frame after the keyframe may also predict from the *baseline*: the
@@ -49,8 +53,11 @@ import numpy as np
 
 from egovid.core.errors import EgovidError
 from egovid.dashcam.codec import vpx
+from egovid.dashcam.codec.settings import EncoderSettings
 
-MAGIC = b"EGV9"
+#: Blob magic per codec (the layout after it is the same: header, run layout, packets).
+MAGICS = {"vp9": b"EGV9", "av1": b"EGA1"}
+MAGIC = MAGICS["vp9"]
 VERSION = 3
 VERSION_HELD = 4  # version 3 with runs that start with START_BASELINE_HELD
 _HEADER = struct.Struct("<4sHHHHHIBB")
@@ -107,6 +114,7 @@ class SegmentLayout:
     refresh: int
     starts: tuple[int, ...]
     n_packets: int
+    codec: str = "vp9"
 
     @property
     def frames(self) -> int:
@@ -137,6 +145,7 @@ class SegmentBlob:
     refresh: int
     starts: tuple[int, ...]
     packets: list[bytes]
+    codec: str = "vp9"
 
     @property
     def frames(self) -> int:
@@ -154,18 +163,27 @@ def pack(
     gop: int = 1,
     refresh: int = 0,
     starts: tuple[int, ...] | list[int] = (START_KEY,),
+    codec: str = "vp9",
 ) -> bytes:
     """A segment blob: header + run layout + length-prefixed packets (in coding order)."""
-    return pack_header(width, height, q, len(packets), gop, refresh, starts) + b"".join(map(frame_packet, packets))
+    head = pack_header(width, height, q, len(packets), gop, refresh, starts, codec)
+    return head + b"".join(map(frame_packet, packets))
 
 
 def pack_header(
-    width: int, height: int, q: int, n_packets: int, gop: int, refresh: int, starts: tuple[int, ...] | list[int]
+    width: int,
+    height: int,
+    q: int,
+    n_packets: int,
+    gop: int,
+    refresh: int,
+    starts: tuple[int, ...] | list[int],
+    codec: str = "vp9",
 ) -> bytes:
-    """The header and run layout of a segment blob of ``n_packets`` packets."""
+    """The header and run layout of a segment blob of ``n_packets`` packets coded with ``codec``."""
     pw, ph = vpx.padded_size(width, height)
     version = VERSION_HELD if START_BASELINE_HELD in starts else VERSION
-    head = _HEADER.pack(MAGIC, version, width, height, pw, ph, n_packets, q, gop)
+    head = _HEADER.pack(MAGICS[codec], version, width, height, pw, ph, n_packets, q, gop)
     return head + _LAYOUT.pack(refresh, len(starts)) + bytes(starts)
 
 
@@ -184,7 +202,9 @@ def parse_header(buf: bytes) -> tuple[SegmentLayout, int]:
     if len(buf) < _HEADER.size:
         raise _damaged()
     magic, version, w, h, _pw, _ph, n, q, gop = _HEADER.unpack_from(buf, 0)
-    if magic != MAGIC or version not in (1, 2, 3, 4) or (version == 1 and gop != 0) or (version > 1 and gop < 1):
+    codec = next((name for name, m in MAGICS.items() if m == magic), None)
+    versions = (1, 2, 3, 4) if codec == "vp9" else (3,)  # an AV1 blob: version 3's layout, keyframe runs
+    if codec is None or version not in versions or (version == 1 and gop != 0) or (version > 1 and gop < 1):
         raise EgovidError("segment blob has an unknown format", "the archive is damaged or from another version")
     gop = max(gop, 1)
     off = _HEADER.size
@@ -198,8 +218,10 @@ def parse_header(buf: bytes) -> tuple[SegmentLayout, int]:
             raise _damaged()
         starts = tuple(buf[off : off + runs])
         off += runs
-    lay = SegmentLayout(w, h, q, gop, refresh, starts, n)
+    lay = SegmentLayout(w, h, q, gop, refresh, starts, n, codec)
     allowed = (START_KEY, START_BASELINE, START_BASELINE_HELD) if version >= 4 else (START_KEY, START_BASELINE)
+    if codec != "vp9":
+        allowed = (START_KEY,)
     if any(s not in allowed for s in starts) or len(starts) != len(substreams(lay.frames, refresh)):
         raise _damaged("has an inconsistent layout")
     return lay, off
@@ -223,7 +245,7 @@ def parse(blob: bytes) -> SegmentBlob:
     packets = list(iter_packets(blob, off, lay.n_packets))
     if off + sum(4 + len(p) for p in packets) != len(blob):
         raise _damaged("has trailing data")
-    return SegmentBlob(lay.width, lay.height, lay.q, lay.gop, lay.refresh, lay.starts, packets)
+    return SegmentBlob(lay.width, lay.height, lay.q, lay.gop, lay.refresh, lay.starts, packets, lay.codec)
 
 
 def run_offsets(blob: bytes) -> list[int]:
@@ -290,10 +312,11 @@ def run_start(blob: bytes, k: int) -> int:
     only the blob's header)."""
     if len(blob) < _HEADER.size + _LAYOUT.size or _HEADER.unpack_from(blob, 0)[1] < 3:
         return 0
-    return _run_start(_LAYOUT.unpack_from(blob, _HEADER.size)[0], k)
+    return period_start(_LAYOUT.unpack_from(blob, _HEADER.size)[0], k)
 
 
-def _run_start(refresh: int, k: int) -> int:
+def period_start(refresh: int, k: int) -> int:
+    """The first frame of the random-access run of period ``refresh`` (0: one run) holding frame ``k``."""
     return k - k % refresh if refresh > 0 else 0
 
 
@@ -401,11 +424,164 @@ class _Digests:
 RUN_DIGEST_CHARS = 16  # 64 bits of SHA-256 per run: ample to catch damage, 16 bytes per 24 frames
 
 
+class SegmentWriter:
+    """What every codec backend does with its packets and pictures, whatever its coding order:
+    the blob (packets length-prefixed, to memory or a ``spool`` file as they come), each run's
+    first byte, per-frame sizes, and in display order the digests, the PSNR-Y against the source,
+    ``keep_recon`` and ``progress``. :meth:`result` packs it as an :class:`EncodedSegment`."""
+
+    def __init__(
+        self, width: int, height: int, refresh: int, *, spool=None, keep_recon=None, progress=None, on_run=None
+    ) -> None:
+        self.width, self.height, self.refresh = width, height, refresh
+        self.spool, self.keep_recon, self.progress, self.on_run = spool, keep_recon, progress, on_run
+        self.shown_bytes = 0
+        self.packets: list[bytes] = []
+        self.n_packets = self.n_bytes = 0
+        self.run_body: list[int] = []  # offset of each run's first packet after the header
+        self.starts: list[int] = []
+        self.size_of: dict[int, int] = {}
+        self.pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.digests = _Digests(refresh)
+        self.se, self.pix, self.next = 0.0, 0, 0
+
+    def begin_run(self, start: int) -> None:
+        """A random-access run begins here, started as ``start`` (:data:`START_KEY`, ...)."""
+        self.run_body.append(self.n_bytes)
+        self.starts.append(start)
+
+    def emit(self, pkt: bytes, k: int) -> None:
+        """Packet ``pkt`` (coding order), whose bytes count towards frame ``k``."""
+        if self.spool is not None:
+            self.spool.write(frame_packet(pkt))
+        else:
+            self.packets.append(pkt)
+        self.n_packets += 1
+        self.n_bytes += 4 + len(pkt)
+        self.size_of[k] = self.size_of.get(k, 0) + len(pkt)
+
+    def picture(self, k: int, source: np.ndarray, rec: np.ndarray) -> None:
+        """Frame ``k``'s source and its reconstruction (both unpadded I420), in any order."""
+        self.pending[k] = (source, rec)
+        while self.next in self.pending:
+            src, r = self.pending.pop(self.next)
+            self.digests.add(r)
+            self.se += float(cv2.norm(r[: self.height], src[: self.height], cv2.NORM_L2SQR))
+            self.pix += self.height * self.width
+            self.shown_bytes += self.size_of[self.next]
+            if self.keep_recon is not None:
+                self.keep_recon.append(r)
+            self.next += 1
+            if self.progress is not None:
+                self.progress(self.next)
+            if self.on_run is not None and self.refresh and self.next % self.refresh == 0:
+                self.on_run(self.next, self.shown_bytes, self.se / self.pix)
+
+    def close(self) -> None:
+        self.digests.close()
+
+    def result(self, q: int, gop: int, codec: str) -> EncodedSegment:
+        if not self.n_packets or self.pending:
+            self.digests.close()
+            raise EgovidError("a segment with no frames cannot be encoded")
+        recon_digest, run_digests = self.digests.result()
+        mse = self.se / max(self.pix, 1)
+        psnr = 10 * np.log10(255.0**2 / mse) if mse > 0 else 100.0
+        sizes = [self.size_of[k] for k in range(self.next)]
+        header = pack_header(self.width, self.height, q, self.n_packets, gop, self.refresh, self.starts, codec)
+        blob = b"" if self.spool is not None else header + b"".join(map(frame_packet, self.packets))
+        offsets = [len(header) + o for o in self.run_body] + [len(header) + self.n_bytes]
+        return EncodedSegment(
+            blob, self.next, recon_digest, float(psnr), sizes, run_digests, header, offsets[-1], offsets, self.spool
+        )
+
+
+class _VP9Coder:
+    """libvpx's encoder (and the verifying decoder, when it follows) for one segment."""
+
+    def __init__(self, width, height, settings, out: SegmentWriter, verify, verify_runs, clock) -> None:
+        self.w, self.h, self.settings, self.out, self.clock = width, height, settings, out, clock
+        self.pw, self.ph = vpx.padded_size(width, height)
+        self.enc = vpx.VP9Encoder(self.pw, self.ph, settings)
+        self.dec = vpx.VP9Decoder(self.pw, self.ph, threads=settings.threads) if verify else None
+        self.verify_runs = verify_runs
+        self.follow = False  # the decoder follows the current run
+        self.q_between = min(63, settings.q + settings.gop_dq)
+        self.grey = np.full((self.ph * 3 // 2, self.pw), 128, np.uint8)
+
+    def code(self, frame, role, golden=None, last=None, q=None) -> tuple[bytes, np.ndarray | None]:
+        t0 = time.perf_counter()
+        pkt = self.enc.encode_structured(frame, role, golden, last, q)
+        rec = self.enc.reconstruction() if role != "hold" else None  # a hold frame's picture is in no slot
+        t1 = time.perf_counter()
+        self.clock["encode"] = self.clock.get("encode", 0.0) + t1 - t0
+        if self.follow:
+            out = self.dec.decode(pkt, golden, last)
+            if rec is not None and not np.array_equal(out, rec):
+                raise EgovidError(
+                    "the decoder does not reproduce the encoder's pictures",
+                    "report this with the libvpx version (egovid dashcam report shows it); nothing was stored",
+                )
+            self.clock["verify"] = self.clock.get("verify", 0.0) + time.perf_counter() - t1
+        return pkt, rec
+
+    def finish(self, k: int, frame: np.ndarray, role: str, golden=None, last=None, q=None) -> np.ndarray:
+        """Code frame ``k`` (unpadded) and hand packet and picture to the writer; returns the padded
+        reconstruction (what LAST must hold for a later anchor)."""
+        pkt, rec = self.code(vpx.pad_i420(frame, self.pw, self.ph), role, golden, last, q)
+        self.out.emit(pkt, k)
+        self.out.picture(k, frame, vpx.crop_i420(rec, self.w, self.h))
+        return rec
+
+    def start_run(self, k0: int, first: np.ndarray, b0: np.ndarray | None) -> None:
+        """The run's first frame: a keyframe, or (with a baseline) predicted from it alone after the
+        undisplayed grey frames (:data:`DUMMIES`)."""
+        self.follow = self.dec is not None and (self.verify_runs is None or self.verify_runs(len(self.out.starts)))
+        if b0 is None:
+            self.out.begin_run(START_KEY)
+            self.finish(k0, first, "key")
+            return
+        start = START_BASELINE_HELD if self.settings.realtime else START_BASELINE
+        self.out.begin_run(start)
+        for role in ("key", "hold")[: DUMMIES[start]]:
+            self.out.emit(self.code(self.grey, role)[0], k0)
+        self.finish(k0, first, "ra", b0)
+
+    def rest_of_run(self, k0: int, run: Iterator[np.ndarray], base: Callable[[int], np.ndarray | None]) -> int:
+        """Code the run's frames after its first (low delay, or anchors and the frames between them
+        in :func:`coding_plan`'s order); returns the run's length."""
+        gop = self.settings.gop
+        if gop <= 1:
+            n = 1
+            for n, frame in enumerate(run, 2):
+                self.finish(k0 + n - 1, frame, "p", base(k0 + n - 1))
+            return n
+        second = next(run, None)
+        if second is None:
+            return 1
+        a = k0 + 1
+        a_rec = self.finish(a, second, "p")
+        n = 2
+        while chunk := list(itertools.islice(run, gop)):  # frames a+1 … b
+            b = a + len(chunk)
+            b_rec = self.finish(b, chunk[-1], "anchor", base(b), a_rec)
+            for j in range(a + 1, b):
+                self.finish(j, chunk[j - a - 1], "between", base(j), q=self.q_between)
+            a, a_rec = b, b_rec
+            n += len(chunk)
+        return n
+
+    def close(self) -> None:
+        self.enc.close()
+        if self.dec is not None:
+            self.dec.close()
+
+
 def encode_segment(
     frames: Iterator[np.ndarray],
     width: int,
     height: int,
-    settings: vpx.EncoderSettings,
+    settings: EncoderSettings,
     baselines: Callable[[int], np.ndarray | None] | None = None,
     progress: Callable[[int], None] | None = None,
     keep_recon: list | None = None,
@@ -414,8 +590,9 @@ def encode_segment(
     verify_runs: Callable[[int], bool] | None = None,
     clock: dict | None = None,
     spool=None,
+    on_run: Callable[[int, int, float], None] | None = None,
 ) -> EncodedSegment:
-    """Encode unpadded I420 frames; ``baselines(k)`` gives frame k's padded baseline (or None).
+    """VP9: encode unpadded I420 frames; ``baselines(k)`` gives frame k's padded baseline (or None).
 
     Frames are read as a stream (``settings.gop`` of them ahead), in runs of ``settings.refresh``
     frames (:func:`substreams`); a run whose first frame has a baseline starts from it (``ra``)
@@ -426,71 +603,17 @@ def encode_segment(
     ``verify_runs(i)``: whether it follows random-access run i (default: every run; a run begins
     with a keyframe, so the decoder can skip runs). ``clock['encode']`` / ``clock['verify']``
     accumulate seconds. ``spool``: a binary file the packets are written to as they come (memory
-    stays flat however long the segment)."""
+    stays flat however long the segment). ``on_run(frames, bytes, mse)``: called whenever the first
+    ``frames`` (a whole number of random-access runs) are coded, with their bytes and mean squared
+    error (what an early choice between encodes compares)."""
     vpx.self_test()
-    pw, ph = vpx.padded_size(width, height)
-    enc = vpx.VP9Encoder(pw, ph, settings)
-    dec = vpx.VP9Decoder(pw, ph, threads=settings.threads) if verify else None
-    clock = clock if clock is not None else {}
-    gop = settings.gop
-    q_between = min(63, settings.q + settings.gop_dq)
-    grey = np.full((ph * 3 // 2, pw), 128, np.uint8)
-    packets: list[bytes] = []
-    body = {"packets": 0, "bytes": 0}
-    run_body: list[int] = []  # offset of each run's first packet after the header
-    starts: list[int] = []
-    size_of: dict[int, int] = {}
-    pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    digests = _Digests(settings.refresh)
-    acc = {"se": 0.0, "pix": 0, "next": 0}
-    follow = {"on": dec is not None}  # the decoder follows the current run
-
-    def emit(pkt: bytes) -> None:
-        if spool is not None:
-            spool.write(frame_packet(pkt))
-        else:
-            packets.append(pkt)
-        body["packets"] += 1
-        body["bytes"] += 4 + len(pkt)
-
-    def code(frame, role, golden=None, last=None, q=None) -> tuple[bytes, np.ndarray | None]:
-        t0 = time.perf_counter()
-        pkt = enc.encode_structured(frame, role, golden, last, q)
-        rec = enc.reconstruction() if role != "hold" else None  # a hold frame's picture is in no slot
-        t1 = time.perf_counter()
-        clock["encode"] = clock.get("encode", 0.0) + t1 - t0
-        if follow["on"]:
-            out = dec.decode(pkt, golden, last)
-            if rec is not None and not np.array_equal(out, rec):
-                raise EgovidError(
-                    "the decoder does not reproduce the encoder's pictures",
-                    "report this with the libvpx version (egovid dashcam report shows it); nothing was stored",
-                )
-            clock["verify"] = clock.get("verify", 0.0) + time.perf_counter() - t1
-        return pkt, rec
-
-    def finish(k: int, frame: np.ndarray, coded: tuple[bytes, np.ndarray]) -> np.ndarray:
-        pkt, padded_rec = coded
-        emit(pkt)
-        size_of[k] = size_of.get(k, 0) + len(pkt)
-        pending[k] = (frame, vpx.crop_i420(padded_rec, width, height))
-        while acc["next"] in pending:
-            src, rec = pending.pop(acc["next"])
-            digests.add(rec)
-            acc["se"] += float(cv2.norm(rec[:height], src[:height], cv2.NORM_L2SQR))
-            acc["pix"] += height * width
-            if keep_recon is not None:
-                keep_recon.append(rec)
-            acc["next"] += 1
-            if progress is not None:
-                progress(acc["next"])
-        return padded_rec
+    out = SegmentWriter(
+        width, height, settings.refresh, spool=spool, keep_recon=keep_recon, progress=progress, on_run=on_run
+    )
+    coder = _VP9Coder(width, height, settings, out, verify, verify_runs, clock if clock is not None else {})
 
     def base(k: int) -> np.ndarray | None:
         return baselines(k) if baselines is not None else None
-
-    def pad(frame: np.ndarray) -> np.ndarray:
-        return vpx.pad_i420(frame, pw, ph)
 
     try:
         it = iter(frames)
@@ -500,65 +623,20 @@ def encode_segment(
             first = next(run, None)
             if first is None:
                 break
-            b0 = base(k0)
-            follow["on"] = dec is not None and (verify_runs is None or verify_runs(len(run_body)))
-            run_body.append(body["bytes"])
-            if b0 is not None:  # the run starts from the older drive instead of a keyframe
-                start = START_BASELINE_HELD if settings.realtime else START_BASELINE
-                starts.append(start)
-                size_of[k0] = 0
-                for role in ("key", "hold")[: DUMMIES[start]]:
-                    dummy, _ = code(grey, role)
-                    emit(dummy)
-                    size_of[k0] += len(dummy)
-                finish(k0, first, code(pad(first), "ra", b0))
-            else:
-                starts.append(START_KEY)
-                finish(k0, first, code(pad(first), "key"))
-            n = 1
-            if gop <= 1:
-                for n, frame in enumerate(run, 2):
-                    k = k0 + n - 1
-                    finish(k, frame, code(pad(frame), "p", base(k)))
-            elif (second := next(run, None)) is not None:
-                a = k0 + 1
-                a_rec = finish(a, second, code(pad(second), "p"))
-                n = 2
-                while chunk := list(itertools.islice(run, gop)):  # frames a+1 … b
-                    b = a + len(chunk)
-                    for k, role, _ in _chunk_plan(a, b):
-                        if role == "anchor":
-                            b_rec = finish(k, chunk[-1], code(pad(chunk[-1]), role, base(k), a_rec))
-                        else:
-                            frame = chunk[k - a - 1]
-                            finish(k, frame, code(pad(frame), role, base(k), q=q_between))
-                    a, a_rec = b, b_rec
-                    n += len(chunk)
-            k0 += n
+            coder.start_run(k0, first, base(k0))
+            k0 += coder.rest_of_run(k0, run, base)
     except BaseException:
-        digests.close()
+        out.close()
         raise
     finally:
-        enc.close()
-        if dec is not None:
-            dec.close()
-    if not body["packets"]:
-        digests.close()
-        raise EgovidError("a segment with no frames cannot be encoded")
-    recon_digest, run_digests = digests.result()
-    mse = acc["se"] / max(acc["pix"], 1)
-    psnr = 10 * np.log10(255.0**2 / mse) if mse > 0 else 100.0
-    sizes = [size_of[k] for k in range(k0)]
-    header = pack_header(width, height, settings.q, body["packets"], gop, settings.refresh, starts)
-    blob = b"" if spool is not None else header + b"".join(map(frame_packet, packets))
-    offsets = [len(header) + o for o in run_body] + [len(header) + body["bytes"]]
-    return EncodedSegment(blob, k0, recon_digest, float(psnr), sizes, run_digests, header, offsets[-1], offsets, spool)
+        coder.close()
+    return out.result(settings.q, settings.gop, "vp9")
 
 
 def decode_segment(
     blob: bytes, baselines: Callable[[int], np.ndarray | None] | None = None, start: int = 0
 ) -> Iterator[np.ndarray]:
-    """Yield the unpadded I420 frames of a segment in display order from frame ``start``. Decoding
+    """VP9: yield the unpadded I420 frames of a segment in display order from frame ``start``. Decoding
     begins at the run holding ``start`` (:func:`run_start`); frames of that run before ``start`` are
     decoded but not yielded."""
     lay, off = parse_header(blob)
@@ -574,12 +652,15 @@ def decode_runs(
 ) -> Iterator[np.ndarray]:
     """Frames from ``start`` (display order), given the packets of the segment from the first
     packet of run ``first_run`` on (which must hold ``start`` or come before it): the part of a
-    blob an extract of a stretch reads by byte range."""
+    blob an extract of a stretch reads by byte range. VP9 segments only (any codec:
+    :func:`egovid.dashcam.codec.registry.decode_runs`)."""
+    if lay.codec != "vp9":
+        raise ValueError(f"a {lay.codec} segment is not decoded by libvpx")
     vpx.self_test()
     w, h, gop = lay.width, lay.height, lay.gop
     plan = lay.plan()
     p0 = lay.run_packets()[first_run][0]
-    skip = _run_start(lay.refresh, start)
+    skip = period_start(lay.refresh, start)
     if plan[p0][0] > skip:
         raise ValueError("decoding must start at or before the run holding the first frame asked for")
     pw, ph = vpx.padded_size(w, h)

@@ -27,6 +27,8 @@ from fractions import Fraction
 import av
 import numpy as np
 
+from egovid.core.video.passthrough import muxable
+
 OPUS_RATE = 48000
 #: Output formats (FFmpeg muxer names) that hold raw telemetry tracks (GPMF, CAMM) as data streams.
 DATA_FORMATS = ("mp4", "mov")
@@ -52,14 +54,12 @@ def _video_start(c: av.container.InputContainer) -> float:
 
 def _unmuxable(path, index: int) -> str | None:
     """Why track ``index`` of ``path`` cannot go into an MP4 (None if it can)."""
-    from egovid.core.video import _muxable
-
     with av.open(str(path)) as c:
         s = c.streams[index]
         pkt = next((p for p in c.demux(s) if p.size and p.pts is not None), None)
         if pkt is None:
             return "no samples"
-        return None if _muxable(s, "mp4", pkt) else "the MP4 muxer cannot carry it"
+        return None if muxable(s, "mp4", pkt) else "the MP4 muxer cannot carry it"
 
 
 def archive_streams(

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.dashcam.codec.settings import EncoderSettings
 
 # Enumerations and flags (vpx_encoder.h, vp8.h, vp8cx.h; stable across 1.12-1.16).
 VPX_IMG_FMT_I420 = 0x102
@@ -327,55 +328,11 @@ class _Codec:
             self.close()
 
 
-@dataclass(frozen=True)
-class EncoderSettings:
-    """VP9 settings: fixed quantiser ``q`` (0-63), ``speed`` (cpu-used), ``realtime`` deadline,
-    ``threads``, ``tile_columns`` (log2) and ``row_mt`` (libvpx's multi-threading; the bitstream
-    decodes to the same pictures whatever the threads),
-    coding structure ``gop`` (1 = low delay; G > 1 = every G-th frame an *anchor* predicted from the
-    anchor before it, the frames between coded after it from the previous frame and the anchor
-    ahead, at quantiser ``q + gop_dq``; see :mod:`egovid.dashcam.codec.segment`) and ``refresh``, the
-    random-access period in frames (0 = only the first frame; see :func:`codec.substreams`);
-    ``start_speed``: cpu-used for the first frame of a joint run, the one predicted from the
-    baseline alone (0 = ``speed``; a twenty-fourth of the frames, so a slower search there is
-    cheap)."""
-
-    q: int = 32
-    speed: int = 4
-    realtime: bool = False
-    fps: int = 30
-    gop: int = 1
-    gop_dq: int = 12
-    refresh: int = 0
-    threads: int = 1
-    tile_columns: int = 0
-    row_mt: bool = False
-    start_speed: int = 0
-
-    def __post_init__(self) -> None:
-        if not 0 <= self.start_speed <= 9:
-            raise EgovidError(f"run-start cpu-used {self.start_speed} is outside 0-9", "use 0 (= speed) or e.g. 5")
-        if not 1 <= self.threads <= 64:
-            raise EgovidError(f"{self.threads} encoder threads is outside 1-64", "use e.g. 2")
-        if not 0 <= self.tile_columns <= 6:
-            raise EgovidError(f"tile columns 2^{self.tile_columns} is outside 2^0-2^6", "use e.g. 1")
-        if self.refresh != 0 and not 2 <= self.refresh <= 65535:
-            raise EgovidError(
-                f"random-access period {self.refresh} frames is outside 2-65535", "use 0 (none) or e.g. 24"
-            )
-        if not 1 <= self.gop <= 64:
-            raise EgovidError(f"GOP length {self.gop} is outside 1-64", "use 1 (low delay) or 8")
-        if not 0 <= self.gop_dq <= 63:
-            raise EgovidError(f"quantiser offset {self.gop_dq} is outside 0-63", "use e.g. 12")
-
-
 class VP9Encoder(_Codec):
     """VP9 encoder with GOLDEN-frame injection (one packet per frame, no look-ahead)."""
 
-    def __init__(self, width: int, height: int, settings: EncoderSettings = EncoderSettings()) -> None:
+    def __init__(self, width: int, height: int, settings: EncoderSettings) -> None:
         super().__init__(width, height)
-        if not (0 <= settings.q <= 63):
-            raise EgovidError(f"quantiser {settings.q} is outside 0-63", "use e.g. --q 32")
         self.settings = settings
         L = self.lib.lib
         iface = L.vpx_codec_vp9_cx()

@@ -19,6 +19,7 @@ import numpy as np
 
 from egovid.core.motion.features import FrameFeatures
 from egovid.dashcam.align.orb import MatchCache, OrbScorer, ScaleRefiner, small_gray
+from egovid.dashcam.align.seqslam import descriptor
 from egovid.dashcam.extract import DriveFrames, FrameSource, read_ahead
 from egovid.dashcam.route.trips import iter_trip_frames
 
@@ -28,7 +29,7 @@ READ_AHEAD = 4  # frames decoded ahead of the stages (new drive and baseline dri
 @dataclass
 class InputFrame:
     """A decoded frame of the new drive: ``index`` in the drive, ``image`` I420 ((h*3/2, w) uint8),
-    ``gray`` its Y plane downscaled to at most 320 pixels wide (:func:`align.small_gray`)."""
+    ``gray`` its Y plane downscaled to at most 320 pixels wide (:func:`~egovid.dashcam.align.orb.small_gray`)."""
 
     index: int
     image: np.ndarray
@@ -111,14 +112,14 @@ class RefFrames:
         return g
 
     def feats(self, j: int) -> FrameFeatures:
-        """ORB features of the search (align.OrbScorer)."""
+        """ORB features of the search (orb.OrbScorer)."""
         f = self._feats.get(j)
         if f is None:
             f = self._feats[j] = self.scorer.features(self.gray(j))
         return f
 
     def fine(self, j: int) -> FrameFeatures:
-        """ORB features of the vertical-scale refinement (align.ScaleRefiner; the search's when it
+        """ORB features of the vertical-scale refinement (orb.ScaleRefiner; the search's when it
         has none of its own)."""
         if not self.refiner.n_features:
             return self.feats(j)
@@ -129,8 +130,6 @@ class RefFrames:
 
     def desc(self, j: int) -> np.ndarray:
         """SeqSLAM descriptor."""
-        from egovid.dashcam.align.seqslam import descriptor
-
         d = self._desc.get(j)
         if d is None:
             d = self._desc[j] = descriptor(self.gray(j))

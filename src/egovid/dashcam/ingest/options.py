@@ -7,20 +7,28 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from egovid.core.errors import EgovidError
-from egovid.dashcam.codec import vpx
+from egovid.dashcam.align import ALIGNERS
+from egovid.dashcam.codec.settings import EncoderSettings
 
-ALIGNERS = ("orb", "orb-plain", "seqslam", "gps")
 BASELINE_ALIGN = ("none", "gain", "similarity")
+CODECS = ("av1", "vp9")  # what standalone pieces can be stored in
 
-#: Named settings (``--preset``); explicit options override them. Measured in
+#: Named settings (``--preset``), the one copy of them: :class:`IngestOptions` takes its defaults
+#: from :data:`DEFAULT_PRESET`'s, and explicit options override a preset. Measured in
 #: benchmarks/dashcam_ingest_speed.py (speed) and benchmarks/dashcam_bdrate.py (savings).
+#: ``codec``/``av1_speed``: the codec of pieces stored standalone (first drives, pieces with no
+#: older drive of their path and light, and joint pieces where the standalone encode is smaller);
+#: the VP9 settings (``realtime``, ``speed``, ...) code the joint candidates.
 PRESETS: dict[str, dict] = {
-    # libvpx's realtime deadline at its fastest speed, two threads sharing rows and two tile
-    # columns (one column saves 0.6 points more but root drives ingest slower), the first frame of
-    # each joint random-access run at cpu-used 5 (0.6 points, no measurable time); one set of ORB
-    # key points per frame shared by the search and the refinement, which measure every 2nd frame
-    # (the others interpolated). docs/dashcam.md, "Why the realtime deadline saved less".
+    # SVT-AV1 preset 10 for standalone pieces; libvpx's realtime deadline at its fastest speed for
+    # the joint candidate, two threads sharing rows and two tile columns (one column saves 0.6
+    # points more but root drives ingest slower), the first frame of each joint random-access run
+    # at cpu-used 5 (0.6 points, no measurable time); one set of ORB key points per frame shared by
+    # the search and the refinement, which measure every 2nd frame (the others interpolated).
+    # docs/dashcam.md, "Why the realtime deadline saved less".
     "realtime": {
+        "codec": "av1",
+        "av1_speed": 10,
         "realtime": True,
         "speed": 9,
         "start_speed": 5,
@@ -32,11 +40,13 @@ PRESETS: dict[str, dict] = {
         "align_every": 2,
         "verify_share": 0.25,
     },
-    # libvpx's good-quality deadline at its fastest speed, two threads sharing rows and two tile
-    # columns: the different-day saving of the archive preset's deadline (libvpx's realtime mode
-    # never searches ALTREF and skips GOLDEN, the older drive, in much of the frame; see
-    # docs/dashcam.md) at about twice its speed.
+    # SVT-AV1 preset 8; libvpx's good-quality deadline at its fastest speed, two threads sharing
+    # rows and two tile columns: the different-day saving of the archive preset's deadline
+    # (libvpx's realtime mode never searches ALTREF and skips GOLDEN, the older drive, in much of
+    # the frame; see docs/dashcam.md) at about twice its speed.
     "balanced": {
+        "codec": "av1",
+        "av1_speed": 8,
         "realtime": False,
         "speed": 5,
         "start_speed": 0,
@@ -48,8 +58,10 @@ PRESETS: dict[str, dict] = {
         "align_every": 1,
         "verify_share": 1.0,
     },
-    # libvpx's good-quality deadline, one thread: the smallest files, the thesis-matched figures.
+    # SVT-AV1 preset 6; libvpx's good-quality deadline, one thread: the smallest files.
     "archive": {
+        "codec": "av1",
+        "av1_speed": 6,
         "realtime": False,
         "speed": 5,
         "start_speed": 0,
@@ -63,28 +75,36 @@ PRESETS: dict[str, dict] = {
     },
 }
 DEFAULT_PRESET = "realtime"
+_D = PRESETS[DEFAULT_PRESET]
+#: SVT-AV1's CRF of equal PSNR-Y to libvpx's quantiser q is about q + 14 over q 28-44
+#: (640x360 different-day drive, VP9 realtime preset q 32: 34.1 dB; SVT-AV1 preset 10 CRF 46:
+#: 34.2 dB; docs/dashcam.md "Codecs"), so one ``--q`` sets both.
+AV1_DQ = 14
 
 
 @dataclass(frozen=True)
 class IngestOptions:
     """How a drive is ingested (the defaults are those of :data:`DEFAULT_PRESET`).
 
-    ``q``: VP9 quantiser 0-63 (lower = better quality; frames between anchors use ``q + 12``);
-    ``speed``: libvpx cpu-used; ``realtime``: realtime instead of good-quality deadline; ``gop``:
-    anchor spacing in frames (8, the default; 1 = low delay, every frame from the one before);
-    ``refresh``: random-access period in frames (a drive can be decoded from every ``refresh``-th
-    frame on: a keyframe for a root drive, a frame predicted from the older drive alone for a joint
-    one; 0 = from the start only);
+    ``q``: the archive's quantiser on libvpx's 0-63 scale (lower = better quality; VP9 frames
+    between anchors use ``q + 12``; AV1 pieces are coded at SVT-AV1 CRF ``q + AV1_DQ``, the same
+    PSNR-Y); ``codec``: what standalone pieces are stored in (av1 | vp9); ``av1_speed``: SVT-AV1
+    preset (0-13); ``speed``: libvpx cpu-used; ``realtime``: realtime instead of good-quality
+    deadline; ``gop``: VP9 anchor spacing in frames (8, the default; 1 = low delay, every frame
+    from the one before); ``refresh``: random-access period in frames (a drive can be decoded from
+    every ``refresh``-th frame on: a keyframe for a standalone piece, a frame predicted from the
+    older drive alone for a joint one; 0 = from the start only);
     ``aligner``: orb (thesis' ORB search, smoothed and refined by vertical image scale; the default) |
     orb-plain (the thesis' search alone) | seqslam | gps;
     ``baseline_align``: none | gain | similarity (global alignment of the baseline);
-    ``measure_savings``: also encode each joint piece standalone to report the saving (off by
-    default: it doubles the encoding);
+    ``measure_savings``: report each joint piece's saving against its standalone encode (the
+    standalone encode runs for every piece with an older drive anyway: the smaller is kept);
     ``verify``: a decoder follows the encoder packet by packet and must reproduce its pictures;
     ``verify_share``: the share of a segment's random-access runs it follows besides the first and
     the last (a seeded sample, :func:`verified_runs`; 1: all). Every run's digest is taken from the
     encoder's pictures either way and checked by every extract;
-    ``threads``, ``row_mt``, ``tile_columns``: libvpx's threading (``tile_columns`` is log2);
+    ``threads``, ``row_mt``, ``tile_columns``: the encoders' threading (``tile_columns``: libvpx's,
+    log2);
     ``start_speed``: cpu-used of the first frame of a joint random-access run (0 = ``speed``);
     ``refine_radius``: reference frames either side of a match measured by the vertical-scale
     refinement; ``refine_features``: its ORB key points per frame (0: the search's own, 500);
@@ -94,23 +114,25 @@ class IngestOptions:
     """
 
     q: int = 32
-    speed: int = 9
-    realtime: bool = True
+    codec: str = _D["codec"]
+    av1_speed: int = _D["av1_speed"]
+    speed: int = _D["speed"]
+    realtime: bool = _D["realtime"]
     gop: int = 8
     refresh: int = 24
     aligner: str = "orb"
     baseline_align: str = "none"
     measure_savings: bool = False
     verify: bool = True
-    verify_share: float = 0.25
-    threads: int = 2
-    row_mt: bool = True
-    tile_columns: int = 1
-    start_speed: int = 5
-    refine_radius: int = 2
-    refine_features: int = 0
-    align_every: int = 2
-    preset: str | None = "realtime"
+    verify_share: float = _D["verify_share"]
+    threads: int = _D["threads"]
+    row_mt: bool = _D["row_mt"]
+    tile_columns: int = _D["tile_columns"]
+    start_speed: int = _D["start_speed"]
+    refine_radius: int = _D["refine_radius"]
+    refine_features: int = _D["refine_features"]
+    align_every: int = _D["align_every"]
+    preset: str | None = DEFAULT_PRESET
 
     @classmethod
     def from_preset(cls, preset: str | None = None, **overrides) -> IngestOptions:
@@ -128,7 +150,10 @@ class IngestOptions:
             raise EgovidError(f"quantiser {self.q} is outside 0-63", "use e.g. --q 32")
         if not 0 <= self.speed <= 9:
             raise EgovidError(f"--speed {self.speed} is outside 0-9", "use e.g. 5")
+        if self.codec not in CODECS:
+            raise EgovidError(f"unknown codec {self.codec!r}", f"choose one of {', '.join(CODECS)}")
         self.encoder_settings(30.0)  # checks gop and the random-access period
+        self.standalone_settings(30.0)
         if self.aligner not in ALIGNERS:
             raise EgovidError(f"unknown aligner {self.aligner!r}", f"choose one of {', '.join(ALIGNERS)}")
         if self.refine_features != 0 and not 100 <= self.refine_features <= 5000:
@@ -153,10 +178,12 @@ class IngestOptions:
         share = self.verify_share
         return lambda i: share >= 1.0 or i in (0, n_runs - 1) or rng.random() < share
 
-    def encoder_settings(self, fps: float) -> vpx.EncoderSettings:
-        return vpx.EncoderSettings(
+    def encoder_settings(self, fps: float) -> EncoderSettings:
+        """The VP9 settings of the joint candidate (and of standalone pieces with ``codec`` vp9)."""
+        return EncoderSettings(
             q=self.q,
             speed=self.speed,
+            codec="vp9",
             realtime=self.realtime,
             fps=round(fps) or 30,
             gop=self.gop,
@@ -165,4 +192,17 @@ class IngestOptions:
             tile_columns=self.tile_columns,
             row_mt=self.row_mt,
             start_speed=self.start_speed,
+        )
+
+    def standalone_settings(self, fps: float) -> EncoderSettings:
+        """The settings of a piece stored standalone (``codec``)."""
+        if self.codec == "vp9":
+            return self.encoder_settings(fps)
+        return EncoderSettings(
+            q=min(63, self.q + AV1_DQ),
+            speed=self.av1_speed,
+            codec=self.codec,
+            fps=round(fps) or 30,
+            refresh=self.refresh,
+            threads=self.threads,
         )

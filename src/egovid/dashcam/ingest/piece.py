@@ -5,7 +5,7 @@
 
     decode_once ──► [first 24 frames: light] ──► choose_baseline
          │                                            │
-         └──► small grey ──► StreamingAlignment ──► match k final ──► baseline k (older drive,
+         └──► small grey ──► ALIGNERS[name]     ──► match k final ──► baseline k (older drive,
                                                                           decoded forward once)
                                                                               │
     frame k (held until its match is final) ─────────────────────────► VP9 encode (+ lockstep
@@ -36,12 +36,12 @@ import cv2
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.dashcam.align import ALIGNERS
 from egovid.dashcam.align.illumination import frame_features
 from egovid.dashcam.align.orb import OrbScorer, small_gray, warm_up, wide_window
+from egovid.dashcam.codec import registry, vpx
 from egovid.dashcam.codec import segment as codec
-from egovid.dashcam.codec import vpx
 from egovid.dashcam.extract import FrameSource
-from egovid.dashcam.ingest.align import StreamingAlignment
 from egovid.dashcam.ingest.frames import InputFrame, RefFrames
 from egovid.dashcam.ingest.options import IngestOptions
 from egovid.dashcam.ingest.records import DriveTrack, EncodedPiece, PiecePlan
@@ -65,8 +65,11 @@ class _Pipe:
     def __init__(self, size: int) -> None:
         self.q: queue.Queue = queue.Queue(size)
         self.stop = threading.Event()
+        self.dropped = threading.Event()  # its encoder lost the early choice: items go nowhere
 
     def put(self, item) -> None:
+        if self.dropped.is_set():
+            return
         while not self.stop.is_set():
             try:
                 self.q.put(item, timeout=0.1)
@@ -81,7 +84,14 @@ class _Pipe:
 
     def __iter__(self):
         while True:
-            item = self.q.get()
+            try:
+                item = self.q.get(timeout=0.1)
+            except queue.Empty:
+                if self.dropped.is_set():
+                    raise _DroppedError from None
+                continue
+            if self.dropped.is_set():
+                raise _DroppedError
             if item is self._END:
                 return
             if isinstance(item, BaseException):
@@ -91,6 +101,10 @@ class _Pipe:
 
 class _StoppedError(Exception):
     pass
+
+
+class _DroppedError(Exception):
+    """Raised to an encoder whose encode lost the early choice (:class:`_Referee`)."""
 
 
 class _Prefetch:
@@ -130,13 +144,6 @@ class _Prefetch:
         self.stop.set()
         self.thread.join()
         self.refs.close()
-
-
-class _Discard:
-    """A spool that keeps nothing (the standalone encode is measured, not stored)."""
-
-    def write(self, data: bytes) -> int:
-        return len(data)
 
 
 class _PieceRun:
@@ -195,7 +202,7 @@ class _PieceRun:
         try:
             for i in range(head):
                 self.head.append(self.analyse(self.next_frame()))
-                if i == 0 and self.opts.aligner in ("orb", "orb-plain"):
+                if i == 0 and ALIGNERS[self.opts.aligner].orb_search:
                     self._start_prefetch()
             self.ref = choose_baseline(self.illum_sum / self.illum_n, self.piece.candidates)
         finally:
@@ -245,8 +252,7 @@ class _PieceRun:
                 self.refs = self.prefetch.take() if self.prefetch is not None else self._open_refs(ref)
                 prior = self._prior(ref)
                 speed_ref = np.abs(np.gradient(ref.positions.astype(float)) * ref.fps) if m > 1 else np.zeros(m)
-                aligner = StreamingAlignment(
-                    self.opts.aligner,
+                aligner = ALIGNERS[self.opts.aligner](
                     self.refs,
                     prior,
                     self.track.speed[f0:f1],
@@ -262,6 +268,14 @@ class _PieceRun:
                     fr, self.head[k] = self.head[k], None
                 else:
                     fr = self.analyse(self.next_frame())
+                if aligner is not None and pipes[0].dropped.is_set():  # standalone won: stop aligning
+                    self.fallbacks = aligner.fallbacks
+                    for j in sorted(held):
+                        for p in pipes[1:]:
+                            p.put((j, held[j], None))
+                    held.clear()
+                    aligner = None
+                    self.refs.close()
                 if aligner is None:
                     for p in pipes:
                         p.put((k, fr.image, None))
@@ -281,7 +295,7 @@ class _PieceRun:
                 self.peak_held = max(self.peak_held, len(held) + self.refs.held)
             if aligner is not None:
                 self.fallbacks = aligner.fallbacks
-                if k_out != self.n:
+                if k_out != self.n and not pipes[0].dropped.is_set():
                     raise RuntimeError(f"the alignment gave {k_out} of {self.n} matches")
             for p in pipes:
                 p.close()
@@ -315,7 +329,7 @@ class _PieceRun:
 
 
 def _encode_from(pipe: _Pipe, clock: dict, stage: str, *args, **kwargs) -> codec.EncodedSegment:
-    """codec.encode_segment of the frames coming down ``pipe`` (baselines with them)."""
+    """registry.encode_segment of the frames coming down ``pipe`` (baselines with them)."""
     bases: dict[int, np.ndarray] = {}
 
     def frames() -> Iterator[np.ndarray]:
@@ -334,11 +348,149 @@ def _encode_from(pipe: _Pipe, clock: dict, stage: str, *args, **kwargs) -> codec
 
     local: dict = {}
     try:
-        return codec.encode_segment(frames(), *args, baselines=baseline, clock=local, **kwargs)
+        return registry.encode_segment(frames(), *args, baselines=baseline, clock=local, **kwargs)
     finally:
         for key, v in local.items():
-            name = stage if key == "encode" else key
+            # the encoder's seconds go to ``stage``; the verifying decoder's to "verify", or to
+            # "verify:standalone" beside a joint encode
+            name = stage if key == "encode" else key if stage == "encode" else f"{key}:{stage}"
             clock[name] = clock.get(name, 0.0) + v
+
+
+#: dB of PSNR-Y per halving of the bytes, near the archive's quantisers (SVT-AV1 and libvpx on the
+#: synthetic drives: 1.7-2.4): how a joint and a standalone encode of a piece at slightly different
+#: quality are compared at equal quality (:func:`keep_joint`).
+DB_PER_HALVING = 2.0
+
+
+#: Random-access runs after which a piece's joint and standalone encodes are compared and the
+#: larger one stopped (the rest of the piece is coded by one encoder; with ``--measure-savings``
+#: both run to the end and the whole piece decides).
+DECIDE_RUNS = 2
+
+
+def keep_joint(joint: tuple[int, float], alone: tuple[int, float]) -> tuple[bool, str]:
+    """Whether the joint encode of a piece is the one to store, and why, given (bytes, PSNR-Y) of
+    each: the smaller at equal PSNR-Y (the joint bytes scaled by 2^(ΔPSNR / :data:`DB_PER_HALVING`)
+    to the standalone's quality)."""
+    (jb, jp), (sb, sp) = joint, alone
+    equal = jb * 2.0 ** ((jp - sp) / DB_PER_HALVING)
+    kept = equal < sb
+    return kept, (
+        f"joint {jb} B at {jp:.2f} dB (= {equal:.0f} B at {sp:.2f} dB) vs standalone {sb} B at {sp:.2f} dB: "
+        f"{'joint' if kept else 'standalone'} is smaller"
+    )
+
+
+def _psnr(mse: float) -> float:
+    return 10 * float(np.log10(255.0**2 / mse)) if mse > 0 else 100.0
+
+
+class _Referee:
+    """The early choice between a piece's joint and standalone encodes: when both have coded the
+    first ``at`` frames (:data:`DECIDE_RUNS` runs), :func:`keep_joint` on those frames, and the
+    other encoder is stopped (its pipe dropped; the producer stops aligning if it was the joint)."""
+
+    def __init__(self, jobs: dict, at: int) -> None:
+        self.jobs, self.at = jobs, at
+        self.seen: dict[str, tuple[int, float]] = {}
+        self.lock = threading.Lock()
+        self.loser: str | None = None
+        self.why = ""
+
+    def hook(self, name: str) -> Callable[[int, int, float], None]:
+        def on_run(frames: int, nbytes: int, mse: float) -> None:
+            if frames != self.at:
+                return
+            with self.lock:
+                self.seen[name] = (nbytes, _psnr(mse))
+                if len(self.seen) == 2 and self.loser is None:
+                    kept, why = keep_joint(self.seen["joint"], self.seen["standalone"])
+                    self.loser = "standalone" if kept else "joint"
+                    self.why = f"first {frames} frames: {why}"
+                    self.jobs[self.loser]["pipe"].dropped.set()
+
+        return on_run
+
+
+class _Encoders:
+    """The piece's encoders, each in its own thread on its own pipe from the producer: the stored
+    candidate(s) — the standalone encode (``opts.codec``) and, where the piece has an older drive,
+    the joint VP9 encode — each spooled to a temporary file."""
+
+    def __init__(self, run: _PieceRun, opts: IngestOptions, fps: float, size, clock, progress) -> None:
+        self.jobs: dict[str, dict] = {}
+        self.pipes: list[_Pipe] = []
+        w, h = size
+        joint = run.ref is not None
+        n_runs = len(codec.substreams(run.n, opts.refresh))
+        self.followed: list[int] = []
+        picks = opts.verified_runs(n_runs, run.piece.frames[0])
+
+        def verified(i: int) -> bool:
+            if picks(i):
+                self.followed.append(i)
+                return True
+            return False
+
+        shown = [0]
+
+        def once(k: int) -> None:  # two encoders report the same frames: count each once
+            if progress is not None and k > shown[0]:
+                shown[0] = k
+                progress(k)
+
+        at = DECIDE_RUNS * opts.refresh
+        self.referee = _Referee(self.jobs, at) if joint and not opts.measure_savings and 0 < at < run.n else None
+        if joint:
+            st = opts.encoder_settings(fps)
+            kw = {"verify": opts.verify, "verify_runs": verified, "progress": once}
+            self._add("joint", "encode", st, w, h, kw)
+        st = opts.standalone_settings(fps)
+        kw = {"progress": once} if joint else {"verify": opts.verify, "verify_runs": verified, "progress": once}
+        self._add("standalone", "standalone" if joint else "encode", st, w, h, kw)
+
+    def _add(self, name: str, stage: str, settings, w: int, h: int, kw: dict) -> None:
+        if self.referee is not None:
+            kw = {**kw, "on_run": self.referee.hook(name)}
+        pipe = _Pipe(QUEUE)
+        spool = tempfile.TemporaryFile(prefix=f"egovid-{name}-")  # noqa: SIM115 - closed by close()
+        job = {"pipe": pipe, "spool": spool, "settings": settings}
+
+        def work() -> None:
+            try:
+                job["seg"] = _encode_from(pipe, self.clock, stage, w, h, settings, spool=spool, **kw)
+            except _DroppedError:
+                job["dropped"] = True
+            except BaseException as exc:
+                job["error"] = exc
+                pipe.stop.set()
+
+        job["thread"] = threading.Thread(target=work, name=f"egovid-{name}", daemon=True)
+        self.jobs[name] = job
+        self.pipes.append(pipe)
+
+    def run(self, producer: threading.Thread, clock: dict) -> dict[str, codec.EncodedSegment]:
+        """Start the producer and the encoders, wait for all; the segments by name."""
+        self.clock = clock
+        producer.start()
+        for job in self.jobs.values():
+            job["thread"].start()
+        try:
+            for job in self.jobs.values():
+                job["thread"].join()
+        finally:
+            for p in self.pipes:
+                p.stop.set()
+            producer.join()
+        for job in self.jobs.values():
+            if "error" in job:
+                raise job["error"]
+        return {name: job["seg"] for name, job in self.jobs.items() if "seg" in job}
+
+    def close(self) -> None:
+        for job in self.jobs.values():
+            job["spool"].close()
 
 
 def encode_piece(
@@ -356,102 +508,84 @@ def encode_piece(
 ) -> EncodedPiece:
     """Baseline, align, encode and verify one piece, taking its frames from ``frames`` (the drive's
     one decode pass, positioned at the piece's first frame); the blob goes to ``source.blobs``.
-    ``clock`` accumulates busy seconds per stage (decode, analyse, reference, align, baseline,
-    encode, verify, standalone) and the encoder's waits."""
+
+    A piece without an older drive is coded standalone (``opts.codec``); one with an older drive
+    is coded both ways at once, joint (VP9 with the baseline) and standalone, and the smaller at
+    equal PSNR-Y is stored (:func:`keep_joint`; the reason is recorded in the segment's
+    ``choice``). ``clock`` accumulates busy seconds per stage (decode, analyse, reference, align,
+    baseline, encode, verify, standalone) and the encoders' waits."""
     clock = clock if clock is not None else {}
     t_start = time.perf_counter()
     run = _PieceRun(source, piece, frames, track, fps, size, opts, clock)
-    if piece.candidates and opts.aligner in ("orb", "orb-plain"):
+    if piece.candidates and ALIGNERS[opts.aligner].orb_search:
         warm_up()  # while the first frames are decoded for the choice of the baseline
     run.choose()
-    settings = opts.encoder_settings(fps)
-    w, h = size
-    pipes = [_Pipe(QUEUE)] + ([_Pipe(QUEUE)] if run.ref is not None and opts.measure_savings else [])
-    producer = threading.Thread(target=run.produce, args=(pipes,), name=f"egovid-piece-{piece.index}", daemon=True)
-    alone: dict = {}
-
-    def standalone() -> None:
-        try:
-            alone["seg"] = _encode_from(pipes[1], clock, "standalone", w, h, settings, spool=_Discard())
-        except BaseException as exc:
-            alone["error"] = exc
-            pipes[1].stop.set()
-
-    helper = threading.Thread(target=standalone, name="egovid-standalone", daemon=True) if len(pipes) > 1 else None
     cb = (lambda k: progress("encode", done + k, n_total)) if progress else None
-    producer.start()
-    if helper is not None:
-        helper.start()
-    with tempfile.TemporaryFile(prefix="egovid-segment-") as spool:
-        try:
-            picks = opts.verified_runs(len(codec.substreams(run.n, settings.refresh)), piece.frames[0])
-            followed: list[int] = []
-
-            def verified(i: int) -> bool:
-                if picks(i):
-                    followed.append(i)
-                    return True
-                return False
-
-            enc = _encode_from(
-                pipes[0],
-                clock,
-                "encode",
-                w,
-                h,
-                settings,
-                progress=cb,
-                verify=opts.verify,
-                verify_runs=verified,
-                spool=spool,
-            )
-        finally:
-            for p in pipes:
-                p.stop.set()
-            producer.join()
-            if helper is not None:
-                helper.join()
-        if "error" in alone:
-            raise alone["error"]
+    encoders = _Encoders(run, opts, fps, size, clock, cb)
+    producer = threading.Thread(
+        target=run.produce, args=(encoders.pipes,), name=f"egovid-piece-{piece.index}", daemon=True
+    )
+    try:
+        segs = encoders.run(producer, clock)
+        alone, joint = segs.get("standalone"), segs.get("joint")
+        if run.ref is None:
+            kept, why = False, "no older drive of this path and light"
+        elif encoders.referee is not None and encoders.referee.loser is not None:
+            kept, why = encoders.referee.loser == "standalone", encoders.referee.why
+        else:
+            kept, why = keep_joint((joint.nbytes, joint.psnr_y), (alone.nbytes, alone.psnr_y))
+        enc = segs["joint" if kept else "standalone"]
         t0 = time.perf_counter()
         sha = source.blobs.put_chunks(enc.chunks())
         run.tick("store", t0)
-    ref = run.ref
-    standalone_bytes = alone["seg"].nbytes if "seg" in alone else None
+    finally:
+        encoders.close()
+    return _encoded(run, opts, enc, sha, kept, why, encoders, alone if run.ref is not None else None, joint, t_start)
+
+
+def _encoded(run, opts, enc, sha, kept, why, encoders, alone, joint, t_start) -> EncodedPiece:
+    """The piece's record: the kept encode, its settings and the choice."""
+    st = encoders.jobs["joint" if kept else "standalone"]["settings"]
+    w, h = run.size
     params = {
         "width": w,
         "height": h,
-        "q": opts.q,
-        "speed": opts.speed,
-        "realtime": opts.realtime,
-        "threads": opts.threads,
-        "gop": opts.gop,
-        "refresh": opts.refresh,
+        "codec": st.codec,
+        "q": st.q,
+        "speed": st.speed,
+        "realtime": st.realtime,
+        "threads": st.threads,
+        "gop": st.gop,
+        "refresh": st.refresh,
         "preset": opts.preset,
         "recon_digest": enc.recon_digest,
         "run_digests": enc.run_digests,
         "run_offsets": enc.run_offsets,
         "psnr_y": enc.psnr_y,
-        "verified_runs": followed if opts.verify else [],  # runs the verifying decoder followed
+        "verified_runs": encoders.followed if opts.verify and kept == (run.ref is not None) else [],
         "aligner": opts.aligner,
-        "standalone_bytes": standalone_bytes,
-        "standalone_psnr_y": alone["seg"].psnr_y if "seg" in alone else None,
+        "choice": why,
+        "joint_bytes": joint.nbytes if joint is not None else None,
+        "joint_psnr_y": joint.psnr_y if joint is not None else None,
+        "standalone_bytes": alone.nbytes if alone is not None else None,
+        "standalone_psnr_y": alone.psnr_y if alone is not None else None,
         "stopped_frames": int(run.stopped.sum()),
         "prior_fallbacks": run.fallbacks,
     }
+    ref = run.ref if kept else None
     return EncodedPiece(
-        piece.frames,
+        run.piece.frames,
         "joint" if ref is not None else "intra",
         ref.drive_id if ref is not None else None,
         ref.drive_name if ref is not None else None,
-        run.refmap,
-        run.align,
+        run.refmap if ref is not None else np.full(run.n, -1, np.int64),
+        run.align if ref is not None else {"kind": "none"},
         sha,
         enc.nbytes,
         params,
         run.illum_sum / max(run.illum_n, 1),
         enc.psnr_y,
-        standalone_bytes,
+        params["standalone_bytes"],
         int(run.stopped.sum()),
         run.fallbacks,
         time.perf_counter() - t_start,

@@ -24,8 +24,10 @@ class DriveInput:
     already-read track (embedded GPS; then ``gps_label`` names it in the catalogue instead of a
     file), and ``extra``, a picklable object whose ``commit(catalogue, drive_id)`` the commit calls
     in its transaction right after adding the drive. A drive recorded as several files (a trip of
-    loop-recording files, dashcam/trips.py) lists them in ``parts``, in order, with the UTC start of
-    each in ``part_starts``: they are decoded back to back as one video."""
+    loop-recording files, route/trips.py) lists them in ``parts``, in order, with the UTC start of
+    each in ``part_starts``: they are decoded back to back as one video. ``probe``: the drive's
+    stage *probe* already made (by whoever examined its files: the fleet's
+    :func:`~egovid.dashcam.ingest.fleet.drive_input`), so that the files are not demuxed again."""
 
     video: Path
     gps: Path | None = None
@@ -38,6 +40,7 @@ class DriveInput:
     extra: object | None = None
     parts: tuple[Path, ...] = ()
     part_starts: tuple[float, ...] = ()
+    probe: VideoProbe | None = None
 
     @property
     def files(self) -> tuple[Path, ...]:
@@ -154,6 +157,22 @@ class EncodedPiece:
     prior_fallbacks: int
     seconds: float = 0.0
     peak_frames_held: int = 0
+
+    def report(self, path_id: int) -> PieceReport:
+        """What the ingest's report says about the piece, now on path ``path_id``."""
+        return PieceReport(
+            self.frames,
+            path_id,
+            self.mode,
+            self.ref_drive_name,
+            self.nbytes,
+            self.standalone_bytes,
+            self.psnr_y,
+            self.stopped_frames,
+            self.prior_fallbacks,
+            self.seconds,
+            self.peak_frames_held,
+        )
 
 
 @dataclass

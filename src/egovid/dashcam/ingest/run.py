@@ -1,7 +1,10 @@
-"""Running the stages for a drive: take the locks, plan, stream the pictures, commit.
+"""Running the stages for a drive: take the locks, plan, stream the pictures, commit; and many
+drives as one batch on the task engine.
 
-:func:`ingest_drive` is the whole ingest of one drive, in this process; :func:`ingest` is the same
-from file names. The locks (locks.py) are taken before the plan reads the paths and held until the
+:func:`ingest_drive` is the whole ingest of one drive, in this process; :func:`plan_batch` and
+:func:`ingest_many` run many, each as a task (a worker process, a Dask worker). Files become
+drives in :func:`egovid.dashcam.ingest.videos.ingest_videos`, the route every caller takes. The
+locks (locks.py) are taken before the plan reads the paths and held until the
 commit: the archive lock shared, and the areas the drive crosses and every path it may split,
 exclusively. So a drive on a road another ingest is adding waits for that commit and then finds
 it as its baseline, while drives elsewhere run at the same time.
@@ -9,18 +12,16 @@ it as its baseline, while drives elsewhere run at the same time.
 
 from __future__ import annotations
 
-import os
 import time
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 from egovid.core.engine import EngineConfig, run_tasks
 from egovid.core.errors import EgovidError
 from egovid.dashcam.archive.locks import ORIGIN_KEY, AreaSession, cell_keys
 from egovid.dashcam.archive.store import Archive, ArchiveSpec
-from egovid.dashcam.codec import vpx
+from egovid.dashcam.codec import registry
 from egovid.dashcam.extract import SegmentSnapshot
 from egovid.dashcam.ingest.frames import decode_once
 from egovid.dashcam.ingest.options import IngestOptions
@@ -67,7 +68,7 @@ def ingest_drive(
         raise EgovidError(
             f"a drive named {inp.drive_name!r} is already in the archive", "pass --name to choose another"
         )
-    vpx.self_test()
+    registry.describe()  # every codec backend round-trips, before anything is written
     size = (vp.info.width, vp.info.height)
     clock: dict[str, float] = {}
     with archive.locks.ingest(on_wait=(lambda _k: progress("wait", 0, 1)) if progress else None) as session:
@@ -94,22 +95,6 @@ def ingest_drive(
     return report
 
 
-def ingest(
-    archive: Archive,
-    video: str | os.PathLike,
-    gps: str | os.PathLike | None = None,
-    options: IngestOptions | None = None,
-    *,
-    name: str | None = None,
-    start_utc: float | None = None,
-    gps_offset: float = 0.0,
-    progress: Progress | None = None,
-) -> IngestReport:
-    """Ingest one drive from its video and GPS files (``gps`` None: the file beside the video)."""
-    inp = DriveInput(Path(video), Path(gps) if gps is not None else None, name, start_utc, gps_offset)
-    return ingest_drive(archive, inp, options, progress)
-
-
 # -- many drives --------------------------------------------------------------------------------
 
 
@@ -123,7 +108,7 @@ class IngestJob:
 
 
 @dataclass
-class IngestResult:
+class DriveResult:
     """A task's end: the drive's report, or the one-line reason it was refused (a user error: not
     retried)."""
 
@@ -132,14 +117,14 @@ class IngestResult:
     error: str | None = None
 
 
-def ingest_task(job: IngestJob) -> IngestResult:
+def ingest_task(job: IngestJob) -> DriveResult:
     """The whole ingest of one drive, as a task for a worker process (engine.run_tasks). Safe to run
     again after its worker died: its token makes a repeated commit return the committed drive."""
     archive = Archive.from_spec(job.archive)
     try:
-        return IngestResult(job.drive.drive_name, ingest_drive(archive, job.drive, job.options))
+        return DriveResult(job.drive.drive_name, ingest_drive(archive, job.drive, job.options))
     except EgovidError as exc:
-        return IngestResult(job.drive.drive_name, error=exc.one_line())
+        return DriveResult(job.drive.drive_name, error=exc.one_line())
     finally:
         archive.close()
 
@@ -181,7 +166,7 @@ def plan_batch(archive: Archive, drives: list[DriveInput], options: IngestOption
     return Batch(jobs, after)
 
 
-def ingest_many(archive: Archive, batch: Batch, config: EngineConfig) -> Iterator[IngestResult]:
+def ingest_many(archive: Archive, batch: Batch, config: EngineConfig) -> Iterator[DriveResult]:
     """Run a batch on the task engine (this process, a local pool of ``config.workers`` processes,
     or a Dask cluster); yields each drive's result as it ends."""
     keys = [j.drive.drive_name for j in batch.jobs]
@@ -189,4 +174,4 @@ def ingest_many(archive: Archive, batch: Batch, config: EngineConfig) -> Iterato
         if outcome.ok:
             yield outcome.value
         else:
-            yield IngestResult(outcome.key, error=f"{type(outcome.error).__name__}: {outcome.error}")
+            yield DriveResult(outcome.key, error=f"{type(outcome.error).__name__}: {outcome.error}")

@@ -13,7 +13,8 @@ For every file :func:`examine` finds:
 
 :func:`plan_ingest` then groups the files into trips (:mod:`egovid.dashcam.route.trips`); files that
 cannot be used are listed with the reason. Nothing is decoded here but the first frame of each file
-(``probe``) and its packet times.
+(``probe``) and its packet times (core.video.frame_times); both travel with the drive to the
+stages (:func:`~egovid.dashcam.ingest.fleet.drive_probe`), so each file is demuxed once per ingest.
 """
 
 from __future__ import annotations
@@ -27,11 +28,12 @@ from pathlib import Path
 import numpy as np
 
 from egovid.core.errors import EgovidError
-from egovid.core.video import VideoInfo, probe
-from egovid.dashcam.ingest.stages import frame_times, gps_beside
-from egovid.dashcam.route.clock import VideoClock, name_time, parse_creation_time, resolve_clock
+from egovid.core.times import creation_time_utc
+from egovid.core.video import VideoInfo, frame_times, probe
+from egovid.dashcam.ingest.stages import check_frame_size
+from egovid.dashcam.route.clock import VideoClock, name_time, resolve_clock
 from egovid.dashcam.route.embedded import EmbeddedGps, read_embedded_gps
-from egovid.dashcam.route.tracks import GpsTrack, read_track
+from egovid.dashcam.route.tracks import GPS_EXTENSIONS, GpsTrack, gps_beside, read_track
 from egovid.dashcam.route.trips import FileInfo, TripPlan, expand_inputs, file_channel, file_kind, plan_trips
 
 
@@ -64,7 +66,7 @@ class FileSource:
     @property
     def duration(self) -> float:
         """Seconds from the first frame to the end of the last (one frame period after its start)."""
-        return float(self.times[-1]) + 1.0 / max(self.info.fps, 1e-6) if len(self.times) else 0.0
+        return span(self.times, self.info.fps)
 
     def file_info(self) -> FileInfo:
         """The file as the trip planner sees it (a clock read from creation_time or a file name
@@ -89,19 +91,16 @@ def _read_log(path: Path, mtime: float) -> GpsTrack | None:
         return None
 
 
-def _folder_log(path: Path, info: VideoInfo, times: np.ndarray, clock: ClockOptions) -> tuple[GpsTrack, str] | None:
+def _folder_log(path: Path, info: VideoInfo, duration: float, clock: ClockOptions) -> tuple[GpsTrack, str] | None:
     """A GPS log in the video's folder that covers it, for a video with no GPS of its own: loggers
     and some cameras write one log per drive, named after its first file, so the later loop files of
     the drive have none beside them. A log counts only where the video's own clock (creation_time,
     file name, ``--tz-offset``) puts the video inside it (:func:`resolve_clock`'s coverage check)."""
-    from egovid.dashcam.ingest.stages import GPS_EXTENSIONS
-
     exts = {e.lower() for e in GPS_EXTENSIONS}
-    created, named = parse_creation_time(info.creation_time), name_time(path.name)
+    created, named = creation_time_utc(info.creation_time), name_time(path.name)
     if created is None and named is None:
         return None  # nothing would place the video inside another file's log
     cands = sorted(f for f in path.parent.iterdir() if f.is_file() and f.suffix.lower() in exts)
-    duration = float(times[-1]) + 1.0 / max(info.fps, 1e-6)
     for f in cands:
         track = _read_log(f, f.stat().st_mtime)
         if track is None:
@@ -115,6 +114,23 @@ def _folder_log(path: Path, info: VideoInfo, times: np.ndarray, clock: ClockOpti
     return None
 
 
+def _own_gps(path: Path, embedded: EmbeddedGps | None) -> tuple[GpsTrack, str] | None:
+    """The file's own GPS and where it came from: the log beside it, else the video's embedded
+    fixes; None when it has neither."""
+    side = _beside(path)
+    if side is not None:
+        return read_track(side), str(side)
+    if embedded is not None:
+        return embedded.track, f"embedded: {embedded.reader}"
+    return None
+
+
+def span(times: np.ndarray, fps: float) -> float:
+    """Seconds from a video's first frame to the end of its last (one frame period after its
+    start), given its frame times (seconds) and frame rate."""
+    return float(times[-1]) + 1.0 / max(fps, 1e-6) if len(times) else 0.0
+
+
 def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions, *, batch: bool = False) -> FileSource:
     """Look at one file (see the module docstring); raises :class:`EgovidError` naming what is
     missing (a video that does not decode, no GPS anywhere: ``--gps``, a clock no GPS confirms).
@@ -123,31 +139,17 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
     path = Path(video)
     info = probe(path)
     times = frame_times(path)
-    if info.width % 2 or info.height % 2:
-        raise EgovidError(
-            f"{path.name} is {info.width}x{info.height}; odd sizes are not supported",
-            "crop the video to even dimensions",
-        )
+    check_frame_size(path, info)
     embedded = read_embedded_gps(path)
-    source = "--gps"
-    track = log
-    if track is None:
-        side = _beside(path)
-        if side is not None:
-            track, source = read_track(side), str(side)
-    if track is None and embedded is not None:
-        track, source = embedded.track, f"embedded: {embedded.reader}"
-    if track is None:
-        folder_log = _folder_log(path, info, times, clock)
-        if folder_log is not None:
-            track, source = folder_log
-    if track is None:
+    duration = span(times, info.fps)
+    found = (log, "--gps") if log is not None else _own_gps(path, embedded) or _folder_log(path, info, duration, clock)
+    if found is None:
         raise EgovidError(
             f"no GPS for {path.name}: none embedded in the video (ExifTool, NMEA text track) and no "
             f"{path.stem}.gpx, .nmea or .csv beside it",
             "give the drive's GPS log with --gps FILE",
         )
-    duration = float(times[-1]) + 1.0 / max(info.fps, 1e-6)
+    track, source = found
 
     def place(log_track: GpsTrack) -> VideoClock:
         return resolve_clock(
@@ -156,7 +158,7 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
             start=clock.start,
             embedded=embedded,
             track=log_track,
-            creation_time=parse_creation_time(info.creation_time),
+            creation_time=creation_time_utc(info.creation_time),
             file_time=name_time(path.name),
             tz_offset_h=clock.tz_offset_h,
             gps_offset=clock.gps_offset,
@@ -165,12 +167,7 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
     try:
         vc = place(track)
     except EgovidError:
-        if not batch or source != "--gps":
-            raise
-        side = _beside(path)
-        own = (read_track(side), str(side)) if side is not None else None
-        if own is None and embedded is not None:
-            own = (embedded.track, f"embedded: {embedded.reader}")
+        own = _own_gps(path, embedded) if batch and source == "--gps" else None
         if own is None:
             raise
         track, source = own

@@ -13,7 +13,6 @@ import datetime as dt
 import itertools
 import json
 import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -21,7 +20,8 @@ from typing import Protocol
 import numpy as np
 
 from egovid.core.errors import EgovidError
-from egovid.core.video import probe
+from egovid.core.times import creation_time_utc
+from egovid.core.video import VideoInfo, frame_times, probe
 from egovid.dashcam.align.illumination import best_match
 from egovid.dashcam.align.stops import stopped_frames
 from egovid.dashcam.archive.catalogue import Catalogue, Sequence
@@ -38,11 +38,11 @@ from egovid.dashcam.ingest.records import (
     SplitPlan,
     VideoProbe,
 )
+from egovid.dashcam.route.clock import MIN_COVER, coverage
 from egovid.dashcam.route.paths import match_path, resample, smooth_track, split_drive, split_points, split_positions
 from egovid.dashcam.route.plane import project_on_polyline, range_overlap
-from egovid.dashcam.route.tracks import GpsTrack, project, read_track
+from egovid.dashcam.route.tracks import GpsTrack, gps_beside, project, read_track
 
-GPS_EXTENSIONS = (".gpx", ".nmea", ".csv")
 NEAR = 60.0  # metres around the drive searched for known paths
 _CHUNK = 16  # fixes per spatial query
 
@@ -50,42 +50,16 @@ _CHUNK = 16  # fixes per spatial query
 # -- probe -------------------------------------------------------------------------------------
 
 
-def frame_times(video: str | os.PathLike) -> np.ndarray:
-    """Presentation times (seconds from the first frame) of every frame, from the demuxer only."""
-    import av
-
-    with av.open(str(video)) as c:
-        s = c.streams.video[0]
-        pts = [p.pts for p in c.demux(s) if p.pts is not None and p.size]
-        tb = float(s.time_base)
-    if not pts:
-        raise EgovidError(f"video {video} has no frames", "give a dashcam video with frames")
-    t = np.sort(np.array(pts, dtype=np.float64)) * tb
-    return t - t[0]
-
-
-def _parse_creation_time(text: str | None) -> float | None:
-    if not text:
-        return None
-    try:
-        t = dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
-    except ValueError:
-        return None
-    if t.tzinfo is None:
-        t = t.replace(tzinfo=dt.UTC)
-    return t.timestamp()
-
-
 def probe_stage(inp: DriveInput) -> VideoProbe:
-    """Describe the video: size, frame rate, each frame's time, its UTC start (``--start``, else
-    the container's ``creation_time``, else unknown)."""
+    """Describe the video: size, frame rate, each frame's time (core.video.frame_times: demuxed,
+    not decoded), its UTC start (``start_utc``, else the container's plausible ``creation_time``,
+    else unknown). A drive whose files were examined already carries this (``inp.probe``, made by
+    :func:`~egovid.dashcam.ingest.fleet.drive_input`): then no file is opened again."""
+    if inp.probe is not None:
+        return inp.probe
     info = probe(inp.video)
-    if info.width % 2 or info.height % 2:
-        raise EgovidError(
-            f"{inp.video} is {info.width}x{info.height}; odd sizes are not supported",
-            "crop the video to even dimensions",
-        )
-    start = inp.start_utc if inp.start_utc is not None else _parse_creation_time(info.creation_time)
+    check_frame_size(inp.video, info)
+    start = inp.start_utc if inp.start_utc is not None else creation_time_utc(info.creation_time)
     if inp.parts:  # a trip: the files' frames on one clock, the gaps between the files kept
         starts = inp.part_starts
         times = np.concatenate([frame_times(f) + (s - starts[0]) for f, s in zip(inp.parts, starts, strict=True)])
@@ -94,19 +68,16 @@ def probe_stage(inp: DriveInput) -> VideoProbe:
     return VideoProbe(Path(inp.video), info, times, start)
 
 
+def check_frame_size(video: str | os.PathLike, info: VideoInfo) -> None:
+    """Refuse a video of odd width or height (the codec's 4:2:0 pictures need even sizes)."""
+    if info.width % 2 or info.height % 2:
+        raise EgovidError(
+            f"{Path(video).name} is {info.width}x{info.height}; odd sizes are not supported",
+            "crop the video to even dimensions",
+        )
+
+
 # -- track -------------------------------------------------------------------------------------
-
-
-def gps_beside(video: Path) -> Path:
-    """The GPS file beside a video: same name, extension .gpx, .nmea or .csv (either case)."""
-    for ext in GPS_EXTENSIONS:
-        for cand in (video.with_suffix(ext), video.with_suffix(ext.upper())):
-            if cand.exists():
-                return cand
-    raise EgovidError(
-        f"no GPS track for {video.name}: no {video.stem}.gpx, .nmea or .csv beside it",
-        "give the drive's GPS log with --gps FILE",
-    )
 
 
 def track_stage(inp: DriveInput, vp: VideoProbe) -> DriveTrack:
@@ -131,11 +102,10 @@ def track_stage(inp: DriveInput, vp: VideoProbe) -> DriveTrack:
 
 
 def check_coverage(track: GpsTrack, t_video: np.ndarray, video_name: str, gps_name: str) -> None:
-    """Refuse a track that covers less than 80 % of the video's time span."""
-    lo, hi = max(track.t[0], t_video[0]), min(track.t[-1], t_video[-1])
-    span = max(t_video[-1] - t_video[0], 1e-6)
-    covered = max(0.0, hi - lo) / span
-    if covered < 0.8:
+    """Refuse a track that covers less than :data:`~egovid.dashcam.route.clock.MIN_COVER` (80 %) of
+    the video's time span (``t_video``: UTC seconds of every frame)."""
+    covered = coverage(track, float(t_video[0]), float(t_video[-1] - t_video[0]))
+    if covered < MIN_COVER:
         v0 = dt.datetime.fromtimestamp(t_video[0], dt.UTC).isoformat(timespec="seconds")
         g0 = dt.datetime.fromtimestamp(track.t[0], dt.UTC).isoformat(timespec="seconds")
         raise EgovidError(
@@ -299,14 +269,24 @@ def split_stage(
     for each piece, each frame's position along its path and the older drives on that path that
     may be its baseline (frame ``size`` (width, height) equal, covering at least half of it).
     Reads the catalogue, writes nothing: the edits are recorded in the plan for :func:`commit`."""
-    fix_t = track.fixes.t
     xy = track_xy(track, origin)
-    speed, bearing = track.fixes.speed, track.fixes.bearing
     near = paths_along(cat, xy)
     ed = PlannedPaths(cat, near)
     plan = SplitPlan(origin, new_origin)
-    matches = [match_path(pid, ed.points(pid), xy, bearing, speed) for pid in near]
-    pieces = split_drive(matches, len(fix_t))
+    matches = [match_path(pid, ed.points(pid), xy, track.fixes.bearing, track.fixes.speed) for pid in near]
+    pieces = split_drive(matches, len(track.fixes.t))
+    keys = _cut_known_paths(ed, plan, pieces, near)
+    bounds = _frame_bounds(pieces, track.fixes.t, track.frame_utc)
+    for piece, key, f0, f1 in zip(pieces, keys, bounds[:-1], bounds[1:], strict=True):
+        if f1 > f0:
+            plan.pieces.append(_piece_plan(cat, ed, plan, track, xy, piece, key, (f0, f1), size))
+    plan.references = reference_segments(cat, {c.drive_id for p in plan.pieces for c in p.candidates})
+    return plan
+
+
+def _cut_known_paths(ed: PlannedPaths, plan: SplitPlan, pieces: list, near: list[int]) -> list:
+    """Split the known paths where the drive's pieces join or leave them (recorded in ``plan``);
+    the key of each piece's path (None for a piece on no known path)."""
     # Parts of each known path after the splits so far, (key, first point, points) in the path's
     # original numbering, so that a drive passing one path twice cuts the right part.
     parts: dict[int, list[tuple]] = {pid: [(pid, 0, len(ed.points(pid)))] for pid in near}
@@ -329,35 +309,49 @@ def split_stage(
             held[i : i + 1] = [(k, p0 + a, b - a + 1) for k, (a, b) in zip(sub, itertools.pairwise(edges), strict=True)]
             key = sub[min(int(np.searchsorted(edges, first, side="right") - 1), len(sub) - 1)]
         keys.append(key)
-    # Frame ranges of the pieces (boundaries half-way between fixes).
-    t_video = track.frame_utc
-    n = len(t_video)
-    bounds = [0]
-    for a, b in itertools.pairwise(pieces):
-        bounds.append(int(np.searchsorted(t_video, 0.5 * (fix_t[a.end - 1] + fix_t[b.start]))))
-    bounds.append(n)
-    for piece, key, f0, f1 in zip(pieces, keys, bounds[:-1], bounds[1:], strict=True):
-        if f1 <= f0:
+    return keys
+
+
+def _frame_bounds(pieces: list, fix_t: np.ndarray, t_video: np.ndarray) -> list[int]:
+    """Frame ranges of the pieces, as boundaries 0, …, n (half-way between the fixes either side)."""
+    inner = [
+        int(np.searchsorted(t_video, 0.5 * (fix_t[a.end - 1] + fix_t[b.start]))) for a, b in itertools.pairwise(pieces)
+    ]
+    return [0, *inner, len(t_video)]
+
+
+def _piece_plan(
+    cat: Catalogue,
+    ed: PlannedPaths,
+    plan: SplitPlan,
+    track: DriveTrack,
+    xy: np.ndarray,
+    piece,
+    key,
+    frames: tuple[int, int],
+    size: tuple[int, int],
+) -> PiecePlan:
+    """One piece: its path (a new one, recorded in ``plan``, where ``key`` is None), each frame's
+    position along it (metres) and the older drives on it that may be its baseline."""
+    f0, f1 = frames
+    seg_xy = xy[piece.start : piece.end]
+    if key is None:
+        key = ed.add_path(resample(seg_xy if len(seg_xy) > 1 else np.vstack([seg_xy, seg_xy + 0.1])), None)
+        plan.ops.append(("new", key, ed.points(key)))
+        plan.new_paths.append(key)
+    # Position of each fix along the path, by projection on the polyline.
+    s_fix = np.maximum.accumulate(project_on_polyline(ed.points(key), seg_xy))
+    tt = track.fixes.t[piece.start : piece.end]
+    t_video = track.frame_utc[f0:f1]
+    pos = (np.interp(t_video, tt, s_fix) if len(tt) > 1 else np.full(f1 - f0, s_fix[0])).astype(np.float32)
+    cands = []
+    for s in ed.sequences(key):
+        if range_overlap(s.positions, pos) < 0.5:
             continue
-        seg_xy = xy[piece.start : piece.end]
-        if key is None:
-            key = ed.add_path(resample(seg_xy if len(seg_xy) > 1 else np.vstack([seg_xy, seg_xy + 0.1])), None)
-            plan.ops.append(("new", key, ed.points(key)))
-            plan.new_paths.append(key)
-        # Position of each fix along the path, by projection on the polyline.
-        s_fix = np.maximum.accumulate(project_on_polyline(ed.points(key), seg_xy))
-        tt = fix_t[piece.start : piece.end]
-        pos = (np.interp(t_video[f0:f1], tt, s_fix) if len(tt) > 1 else np.full(f1 - f0, s_fix[0])).astype(np.float32)
-        cands = []
-        for s in ed.sequences(key):
-            if range_overlap(s.positions, pos) < 0.5:
-                continue
-            d = cat.drive(s.drive_id)
-            if (d.width, d.height) == size:
-                cands.append(Candidate(d.id, d.name, s.frame_start, s.frame_end, s.positions, s.illum, d.fps))
-        plan.pieces.append(PiecePlan(len(plan.pieces), (f0, f1), key, pos, cands))
-    plan.references = reference_segments(cat, {c.drive_id for p in plan.pieces for c in p.candidates})
-    return plan
+        d = cat.drive(s.drive_id)
+        if (d.width, d.height) == size:
+            cands.append(Candidate(d.id, d.name, s.frame_start, s.frame_end, s.positions, s.illum, d.fps))
+    return PiecePlan(len(plan.pieces), frames, key, pos, cands)
 
 
 # -- choose baseline ---------------------------------------------------------------------------
@@ -382,46 +376,18 @@ def commit(
     track: DriveTrack,
     plan: SplitPlan,
     encoded: list[EncodedPiece],
-    progress: Callable[[str, int, int], None] | None = None,
 ) -> IngestReport:
     """Record the drive in one catalogue transaction: the origin (first drive), the drive, the
     planned path edits, a segment and a sequence per piece. A commit that finds its ``token`` done
     returns that drive's report (a retried task). Raises :class:`EgovidError` (and changes nothing)
     when the drive's name is taken."""
     cat = archive.catalogue
-    name = inp.drive_name
     with cat.transaction():
         if inp.token and (done := cat.get_meta(f"ingest:{inp.token}")) is not None:
             return committed_report(archive, int(done))
-        if cat.drive(name) is not None:
-            raise EgovidError(f"a drive named {name!r} is already in the archive", "pass --name to choose another")
-        current = archive.origin
-        if current is None:
-            cat.set_meta(ORIGIN_META, json.dumps(list(plan.origin)))
-        elif not np.allclose(current, plan.origin, rtol=0, atol=1e-12):
-            raise EgovidError("another ingest set the archive's origin meanwhile", "run the ingest again")
-        drive_id = cat.add_drive(
-            name,
-            str(vp.video.resolve()),
-            str(track.gps_source.resolve()) if track.gps_source.exists() else str(track.gps_source),
-            float(track.frame_utc[0]),
-            vp.info.fps,
-            vp.info.width,
-            vp.info.height,
-            vp.frames,
-        )
-        if inp.extra is not None:
-            inp.extra.commit(cat, drive_id)
-        ed = CataloguePaths(cat, drive_id)
-        for op in plan.ops:
-            if op[0] == "split":
-                _, key, edges, planned = op
-                for k, real in zip(planned, split_path(ed, key, edges), strict=True):
-                    if isinstance(k, str):
-                        ed.keys[k] = real
-            else:  # ("new", key, points)
-                ed.keys[op[1]] = cat.add_path(op[2], drive_id)
-        report = IngestReport(drive_id, name, vp.frames)
+        drive_id = _add_drive(archive, inp, vp, track, plan.origin)
+        ed = _replay_paths(cat, plan, drive_id)
+        report = IngestReport(drive_id, inp.drive_name, vp.frames)
         report.split_paths = list(plan.split_paths)
         report.new_paths = [ed.keys[k] for k in plan.new_paths]
         for piece, enc in zip(plan.pieces, encoded, strict=True):
@@ -431,24 +397,54 @@ def commit(
                 drive_id, *enc.frames, enc.mode, enc.ref_drive_id, enc.refmap, enc.align, enc.blob, enc.nbytes, params
             )
             cat.add_sequence(drive_id, path_id, *enc.frames, piece.positions, enc.illum, seg_id)
-            report.pieces.append(
-                PieceReport(
-                    enc.frames,
-                    path_id,
-                    enc.mode,
-                    enc.ref_drive_name,
-                    enc.nbytes,
-                    enc.standalone_bytes,
-                    enc.psnr_y,
-                    enc.stopped_frames,
-                    enc.prior_fallbacks,
-                    enc.seconds,
-                    enc.peak_frames_held,
-                )
-            )
+            report.pieces.append(enc.report(path_id))
         if inp.token:
             cat.set_meta(f"ingest:{inp.token}", str(drive_id))
     return report
+
+
+def _add_drive(archive: Archive, inp: DriveInput, vp: VideoProbe, track: DriveTrack, origin) -> int:
+    """The drive's row (and the origin for the first drive, and the rows of ``inp.extra``), inside
+    the commit's transaction; its id."""
+    cat = archive.catalogue
+    if cat.drive(inp.drive_name) is not None:
+        raise EgovidError(
+            f"a drive named {inp.drive_name!r} is already in the archive", "pass --name to choose another"
+        )
+    current = archive.origin
+    if current is None:
+        cat.set_meta(ORIGIN_META, json.dumps(list(origin)))
+    elif not np.allclose(current, origin, rtol=0, atol=1e-12):
+        raise EgovidError("another ingest set the archive's origin meanwhile", "run the ingest again")
+    gps = track.gps_source
+    drive_id = cat.add_drive(
+        inp.drive_name,
+        str(vp.video.resolve()),
+        str(gps.resolve()) if gps.exists() else str(gps),
+        float(track.frame_utc[0]),
+        vp.info.fps,
+        vp.info.width,
+        vp.info.height,
+        vp.frames,
+    )
+    if inp.extra is not None:
+        inp.extra.commit(cat, drive_id)
+    return drive_id
+
+
+def _replay_paths(cat: Catalogue, plan: SplitPlan, drive_id: int) -> CataloguePaths:
+    """The plan's path edits on the catalogue (inside the commit's transaction); the editor maps
+    the planned paths' keys to the ids they got."""
+    ed = CataloguePaths(cat, drive_id)
+    for op in plan.ops:
+        if op[0] == "split":
+            _, key, edges, planned = op
+            for k, real in zip(planned, split_path(ed, key, edges), strict=True):
+                if isinstance(k, str):
+                    ed.keys[k] = real
+        else:  # ("new", key, points)
+            ed.keys[op[1]] = cat.add_path(op[2], drive_id)
+    return ed
 
 
 def committed_report(archive: Archive, drive_id: int) -> IngestReport:

@@ -29,7 +29,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from egovid.core.errors import EgovidError
-from egovid.dashcam.route.embedded import EmbeddedGps, plausible_utc
+from egovid.core.times import plausible_utc
+from egovid.dashcam.route.embedded import EmbeddedGps
 from egovid.dashcam.route.tracks import GpsTrack
 
 #: Camera clock and GPS agree when within this many seconds (creation_time has 1 s resolution).
@@ -65,23 +66,6 @@ class VideoClock:
 def iso(t: float) -> str:
     """UTC seconds → ``2024-01-31T23:59:59.500Z``."""
     return dt.datetime.fromtimestamp(t, dt.UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
-
-
-def parse_creation_time(text: str | None) -> float | None:
-    """A container's ``creation_time`` (ISO 8601; no zone = UTC) → seconds, None if missing,
-    unreadable or implausible (an unset clock's 1904/1970/2000-01-01)."""
-    if not text:
-        return None
-    try:
-        t = dt.datetime.fromisoformat(str(text).strip().replace("Z", "+00:00"))
-    except ValueError:
-        return None
-    if t.tzinfo is None:
-        t = t.replace(tzinfo=dt.UTC)
-    s = t.timestamp()
-    if not plausible_utc(s) or (t.year == 2000 and t.month == 1 and t.day == 1):
-        return None
-    return s
 
 
 def name_time(path: str) -> float | None:
@@ -137,43 +121,57 @@ def resolve_clock(
     the last frame; ``track``: a GPS log given separately (``--gps``); ``embedded``: the video's own
     fixes; ``creation_time`` / ``file_time``: the camera's clock as written (UTC-tagged); raises
     :class:`EgovidError` when no clock fits the GPS."""
-    notes: list[str] = []
-    tz = 0.0 if tz_offset_h is None else float(tz_offset_h)
     if start is not None:
-        return VideoClock(start + gps_offset, "--start", tuple(notes))
+        return VideoClock(start + gps_offset, "--start")
     if embedded is not None and embedded.timed:
-        s = embedded.start_utc()
-        if tz_offset_h is not None:
-            notes.append("--tz-offset is not needed: the video's own GPS gives UTC")
-        if creation_time is not None and abs(creation_time - s) > AGREE_S:
-            d = creation_time - s
-            zone = round(d / 900.0) / 4.0
-            why = f" (time zone UTC{zone:+g}?)" if abs(d - zone * 3600) < 60 and zone else ""
-            notes.append(f"the camera clock (creation_time {iso(creation_time)}) is {_hours(d)} off GPS time{why}")
-        return VideoClock(s + gps_offset, f"GPS time ({embedded.reader})", tuple(notes))
+        return _gps_time_clock(embedded, creation_time, tz_offset_h, gps_offset)
     log = track if track is not None else (embedded.track if embedded is not None else None)
     if log is None:
         raise EgovidError(f"no GPS for {video_name}", "give its GPS log with --gps FILE (GPX, NMEA or CSV)")
-    candidates: list[tuple[str, float]] = []
+    tz = 0.0 if tz_offset_h is None else float(tz_offset_h)
     zone_label = f" {-tz:+g} h (--tz-offset)" if tz else ""
+    candidates: list[tuple[str, float]] = []
     if creation_time is not None:
         candidates.append((f"creation_time{zone_label}", creation_time - tz * 3600.0))
     if file_time is not None:
         candidates.append((f"file name time{zone_label}", file_time - tz * 3600.0))
     for label, s in candidates:
         if coverage(log, s, duration) >= min_cover:
-            return VideoClock(s + gps_offset, label, tuple(notes))
+            return VideoClock(s + gps_offset, label)
     if not candidates:
         # The video has no clock at all: nothing contradicts the log, and a log as long as the
         # video is the video's own (its first fix is the first frame).
         if abs(float(log.t[-1] - log.t[0]) - duration) <= max(5.0, 0.1 * duration):
-            notes.append("the video has no clock: its start is the GPS log's first fix")
-            return VideoClock(float(log.t[0]) + gps_offset, "GPS log start", tuple(notes))
+            note = "the video has no clock: its start is the GPS log's first fix"
+            return VideoClock(float(log.t[0]) + gps_offset, "GPS log start", (note,))
         raise EgovidError(
             f"{video_name} has no clock to place it in GPS log {Path(log.source).name or 'track'}",
             "give its start with --start ISO-TIME",
         )
-    label, s = candidates[0]
+    raise _no_clock_fits(log, *candidates[0], duration, video_name, tz, min_cover)
+
+
+def _gps_time_clock(
+    embedded: EmbeddedGps, creation_time: float | None, tz_offset_h: float | None, gps_offset: float
+) -> VideoClock:
+    """The start from the video's own timed GPS fixes, with a note where the camera clock differs."""
+    notes: list[str] = []
+    s = embedded.start_utc()
+    if tz_offset_h is not None:
+        notes.append("--tz-offset is not needed: the video's own GPS gives UTC")
+    if creation_time is not None and abs(creation_time - s) > AGREE_S:
+        d = creation_time - s
+        zone = round(d / 900.0) / 4.0
+        why = f" (time zone UTC{zone:+g}?)" if abs(d - zone * 3600) < 60 and zone else ""
+        notes.append(f"the camera clock (creation_time {iso(creation_time)}) is {_hours(d)} off GPS time{why}")
+    return VideoClock(s + gps_offset, f"GPS time ({embedded.reader})", tuple(notes))
+
+
+def _no_clock_fits(
+    log: GpsTrack, label: str, s: float, duration: float, video_name: str, tz: float, min_cover: float
+) -> EgovidError:
+    """The error for a camera clock (``label``, start ``s``) the log contradicts: how much of the
+    video the log covers, and the time-zone shift that would fit (``--tz-offset``), if any."""
     problem = (
         f"GPS log {Path(log.source).name or 'track'} ({iso(float(log.t[0]))} to {iso(float(log.t[-1]))}) covers "
         f"{100 * coverage(log, s, duration):.0f}% of {video_name} (from {iso(s)}, its {label})"
@@ -185,4 +183,4 @@ def resolve_clock(
         fix = f"the camera clock looks like local time UTC{whole[0]:+g}: pass --tz-offset {whole[0]:g}{more}"
     else:
         fix = "give the GPS log of this drive, or its start with --start ISO-TIME (or shift with --gps-offset SECONDS)"
-    raise EgovidError(problem, fix)
+    return EgovidError(problem, fix)

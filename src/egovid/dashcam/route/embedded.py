@@ -30,14 +30,16 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import av
 import numpy as np
 
-from egovid.dashcam.route.tracks import GpsTrack, _finish, parse_nmea, rmc_has_fix
+from egovid.core.camera.exif import read_tags
+from egovid.core.times import plausible_utc
+from egovid.dashcam.route.tracks import GpsTrack, _finish, as_float, nmea_fixes
 
-#: GPS times outside these years are not trusted (unset clock, GPS week roll-over).
-PLAUSIBLE_YEARS = (2000, 2100)
 MAX_HDOP = 5.0
 _KEY = re.compile(r"^(?:Doc(\d+):)?(?:Copy(\d+):)?([A-Za-z0-9]+)$")
+_NMEA_LINE = re.compile(r"\$[A-Z]{2}[A-Z]{3},[^\r\n$]*")
 _GPS_TIME = re.compile(r"^(\d{4})[:\-](\d\d)[:\-](\d\d)[ T](\d\d):(\d\d):(\d\d(?:\.\d+)?)\s*(Z|[+\-]\d\d:?\d\d)?$")
 
 
@@ -90,25 +92,10 @@ def parse_gps_time(text: str) -> float | None:
     return t if plausible_utc(t) else None
 
 
-def plausible_utc(t: float | None) -> bool:
-    """A UTC time (seconds) that a camera or GPS clock could really show (years 2000-2100)."""
-    if t is None or not math.isfinite(t):
-        return False
-    year = dt.datetime.fromtimestamp(t, dt.UTC).year if -1e10 < t < 1e11 else 0
-    return PLAUSIBLE_YEARS[0] <= year < PLAUSIBLE_YEARS[1]
-
-
-def _num(v) -> float:
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return math.nan
-
-
 def _speed_ms(speed, ref) -> float:
     """ExifTool's GPSSpeed in m/s given GPSSpeedRef (K km/h, M mph, N knots); NaN if the unit is unknown."""
     factor = {"K": 1 / 3.6, "M": 0.44704, "N": 0.514444}.get(str(ref).strip().upper()[:1] if ref else "")
-    v = _num(speed)
+    v = as_float(speed)
     return v * factor if factor is not None and math.isfinite(v) else math.nan
 
 
@@ -123,26 +110,17 @@ def fixes_from_exiftool(tags: dict, source: str = "") -> EmbeddedGps | None:
     has one time for several fixes (GoPro GPS5), the fixes are spread evenly over the sample's
     duration from it. Video times: the document's sample time, fixes spread evenly over its duration.
     """
-    docs: dict[int, dict[float, dict[str, object]]] = {}
-    for key, value in tags.items():
-        m = _KEY.match(key)
-        if not m:
-            continue
-        doc = int(m.group(1) or 0)
-        copy = float(m.group(2)) if m.group(2) else math.inf
-        docs.setdefault(doc, {}).setdefault(copy, {})[m.group(3)] = value
     dropped = {"no fix": 0, "imprecise": 0, "no time": 0}
     rows: list[tuple[float, float, float, float, float, float]] = []  # utc, video_t, lat, lon, speed, bearing
-    for doc in sorted(docs):
+    for doc, samples in sorted(_documents(tags).items()):
         if doc == 0:
             continue  # the container's own tags (a single GPSPosition is no track)
-        samples = docs[doc]
         meta = {k: v for s in samples.values() for k, v in s.items() if k in ("SampleTime", "SampleDuration")}
         fixes = [s for _, s in sorted(samples.items()) if "GPSLatitude" in s and "GPSLongitude" in s]
         if not fixes:
             continue
         n = len(fixes)
-        t0, dur = _num(meta.get("SampleTime")), _num(meta.get("SampleDuration"))
+        t0, dur = as_float(meta.get("SampleTime")), as_float(meta.get("SampleDuration"))
         times = [_fix_time(s) for s in fixes]
         given = [t for t in times if t is not None]
         if len(given) == 1 and n > 1 and math.isfinite(dur):  # one time per payload (GoPro GPSU)
@@ -151,30 +129,49 @@ def fixes_from_exiftool(tags: dict, source: str = "") -> EmbeddedGps | None:
             order = np.argsort(given, kind="stable")  # trust the fixes' own times over tag order
             fixes, times = [fixes[i] for i in order], [given[i] for i in order]
         for k, (s, utc) in enumerate(zip(fixes, times, strict=True)):
-            lat, lon = _num(s.get("GPSLatitude")), _num(s.get("GPSLongitude"))
-            status = str(s.get("GPSStatus", "A")).strip().upper()[:1]
-            mode = _num(s.get("GPSMeasureMode"))
-            if not (math.isfinite(lat) and math.isfinite(lon)) or (abs(lat) < 1e-6 and abs(lon) < 1e-6):
-                dropped["no fix"] += 1
-                continue
-            if status == "V" or (math.isfinite(mode) and mode < 2):
-                dropped["no fix"] += 1
-                continue
-            dop = _num(s.get("GPSHPositioningError", s.get("GPSDOP")))
-            if math.isfinite(dop) and dop > MAX_HDOP:
-                dropped["imprecise"] += 1
-                continue
-            if utc is None:
-                dropped["no time"] += 1
+            why = _unusable(s, utc)
+            if why is not None:
+                dropped[why] += 1
                 continue
             vt = (
                 t0 + k * dur / n
                 if math.isfinite(t0) and math.isfinite(dur)
                 else (t0 if math.isfinite(t0) else math.nan)
             )
-            bearing = _num(s.get("GPSTrack")) if str(s.get("GPSTrackRef", "T")).upper()[:1] == "T" else math.nan
+            bearing = as_float(s.get("GPSTrack")) if str(s.get("GPSTrackRef", "T")).upper()[:1] == "T" else math.nan
+            lat, lon = as_float(s.get("GPSLatitude")), as_float(s.get("GPSLongitude"))
             rows.append((utc, vt, lat, lon, _speed_ms(s.get("GPSSpeed"), s.get("GPSSpeedRef")), bearing))
     return _embedded(rows, f"ExifTool ({source})" if source else "ExifTool", {k: v for k, v in dropped.items() if v})
+
+
+def _documents(tags: dict) -> dict[int, dict[float, dict[str, object]]]:
+    """ExifTool's tags by document (``DocN``; 0 for the container's own) and copy (``CopyM``; inf
+    for the one without a number), the tag names without those prefixes."""
+    docs: dict[int, dict[float, dict[str, object]]] = {}
+    for key, value in tags.items():
+        m = _KEY.match(key)
+        if not m:
+            continue
+        doc = int(m.group(1) or 0)
+        copy = float(m.group(2)) if m.group(2) else math.inf
+        docs.setdefault(doc, {}).setdefault(copy, {})[m.group(3)] = value
+    return docs
+
+
+def _unusable(sample: dict, utc: float | None) -> str | None:
+    """Why one fix of ExifTool's is dropped ("no fix", "imprecise", "no time"), None if it is
+    kept: no position or the (0, 0) of no fix yet, status V or a measure mode below 2-D, a
+    horizontal dilution of precision above :data:`MAX_HDOP`, no time."""
+    lat, lon = as_float(sample.get("GPSLatitude")), as_float(sample.get("GPSLongitude"))
+    if not (math.isfinite(lat) and math.isfinite(lon)) or (abs(lat) < 1e-6 and abs(lon) < 1e-6):
+        return "no fix"
+    mode = as_float(sample.get("GPSMeasureMode"))
+    if str(sample.get("GPSStatus", "A")).strip().upper()[:1] == "V" or (math.isfinite(mode) and mode < 2):
+        return "no fix"
+    dop = as_float(sample.get("GPSHPositioningError", sample.get("GPSDOP")))
+    if math.isfinite(dop) and dop > MAX_HDOP:
+        return "imprecise"
+    return "no time" if utc is None else None
 
 
 def _fix_time(sample: dict) -> float | None:
@@ -191,38 +188,12 @@ def _fix_time(sample: dict) -> float | None:
 
 def fixes_from_nmea_samples(samples: Iterable[tuple[float, str]], source: str = "") -> EmbeddedGps | None:
     """Fixes from NMEA 0183 text samples: (video time in seconds, text of the sample) pairs, as a
-    text track holds them. RMC sentences give date, time, position, speed and course (status A
-    only, not dead-reckoned); GGA sentences (fix quality 1-5) add positions at RMC's date. Sentences
-    with a bad checksum are dropped and counted. A fix's video time is its sample's."""
+    text track holds them, merged as a log file's are (:func:`~egovid.dashcam.route.tracks.nmea_fixes`:
+    RMC with a fix, GGA positions at RMC's date; bad checksums dropped and counted). A fix's video
+    time is its sample's."""
     dropped = {"checksum": 0, "no fix": 0, "unparsable": 0}
-    rmc: dict[float, tuple] = {}
-    gga: list[tuple] = []
-    day = None
-    for vt, text in samples:
-        for line in re.findall(r"\$[A-Z]{2}[A-Z]{3},[^\r\n$]*", text):
-            msg = parse_nmea(line, dropped)
-            if msg is None:
-                continue
-            kind = msg.sentence_type
-            if kind == "RMC":
-                if not rmc_has_fix(msg):
-                    dropped["no fix"] += 1
-                    continue
-                day = msg.datestamp
-                utc = dt.datetime.combine(msg.datestamp, msg.timestamp).replace(tzinfo=dt.UTC).timestamp()
-                spd = _num(msg.spd_over_grnd) * 0.514444
-                rmc[utc] = (utc, vt, msg.latitude, msg.longitude, spd, _num(msg.true_course))
-            elif kind == "GGA":
-                if not msg.timestamp or str(msg.gps_qual) in ("0", "6", ""):
-                    dropped["no fix"] += 1
-                    continue
-                gga.append((msg.timestamp, vt, msg.latitude, msg.longitude))
-    rows = list(rmc.values())
-    if day is not None:
-        for ts, vt, lat, lon in gga:
-            utc = dt.datetime.combine(day, ts).replace(tzinfo=dt.UTC).timestamp()
-            if utc not in rmc:
-                rows.append((utc, vt, lat, lon, math.nan, math.nan))
+    lines = ((vt, line) for vt, text in samples for line in _NMEA_LINE.findall(text))
+    rows = nmea_fixes(lines, dropped, "no fix")
     name = f"NMEA text track ({source})" if source else "NMEA text track"
     return _embedded(rows, name, {k: v for k, v in dropped.items() if v})
 
@@ -244,8 +215,6 @@ def _embedded(rows: list[tuple], reader: str, dropped: dict[str, int]) -> Embedd
 def text_track_samples(video: str | os.PathLike) -> list[tuple[float, str]]:
     """(presentation time in seconds from the first video frame, text) of every sample of the
     file's subtitle/text and data tracks that holds NMEA sentences (``$GP…``/``$GN…``)."""
-    import av
-
     out: list[tuple[float, str]] = []
     with av.open(str(video)) as c:
         if not c.streams.video:
@@ -275,6 +244,4 @@ def read_embedded_gps(video: str | os.PathLike) -> EmbeddedGps | None:
         found = fixes_from_nmea_samples(samples, name)
         if found is not None:
             return found
-    from egovid.core.camera.exif import read_tags
-
     return fixes_from_exiftool(read_tags(video, embedded=True, duplicates=True), name)

@@ -16,14 +16,20 @@ import csv
 import datetime as dt
 import math
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import gpxpy
 import numpy as np
+import pynmea2
 
 from egovid.core.errors import EgovidError
+from egovid.core.times import iso_to_utc, utc_seconds
 
 EARTH_R = 6371008.8
+KNOT = 0.514444  # m/s
+GPS_EXTENSIONS = (".gpx", ".nmea", ".csv")  # of a GPS log beside its video
 _FIX = "give a GPX file, an NMEA 0183 log (.nmea/.txt) or a CSV with time,lat,lon[,speed,bearing]"
 
 
@@ -56,16 +62,6 @@ class GpsTrack:
         b = np.unwrap(np.radians(self.bearing))
         return np.interp(t, self.t, self.speed), np.degrees(np.interp(t, self.t, b)) % 360.0
 
-    def at(self, t: np.ndarray, origin: tuple[float, float]) -> dict[str, np.ndarray]:
-        """Positions (metres), speed and bearing interpolated at UTC times ``t``."""
-        xy = self.xy(origin)
-        speed, bearing = self.motion_at(t)
-        return {
-            "xy": np.stack([np.interp(t, self.t, xy[:, 0]), np.interp(t, self.t, xy[:, 1])], axis=1),
-            "speed": speed,
-            "bearing": bearing,
-        }
-
     def between(self, t0: float, t1: float) -> GpsTrack:
         """The fixes with ``t0 <= t <= t1`` (UTC seconds)."""
         k = (self.t >= t0) & (self.t <= t1)
@@ -78,14 +74,6 @@ def project(lat, lon, origin: tuple[float, float]) -> np.ndarray:
     x = np.radians(np.asarray(lon, dtype=float) - lon0) * EARTH_R * math.cos(math.radians(lat0))
     y = np.radians(np.asarray(lat, dtype=float) - lat0) * EARTH_R
     return np.stack([x, y], axis=-1)
-
-
-def unproject(xy: np.ndarray, origin: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse of :func:`project`."""
-    lat0, lon0 = origin
-    lat = lat0 + np.degrees(xy[..., 1] / EARTH_R)
-    lon = lon0 + np.degrees(xy[..., 0] / (EARTH_R * math.cos(math.radians(lat0))))
-    return lat, lon
 
 
 def _derive(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, speed, bearing) -> tuple[np.ndarray, np.ndarray]:
@@ -128,15 +116,7 @@ def _finish(t, lat, lon, speed, bearing, source, dropped) -> GpsTrack:
     return GpsTrack(t, lat, lon, speed, bearing, source, dropped)
 
 
-def _utc(d: dt.datetime) -> float:
-    if d.tzinfo is None:
-        d = d.replace(tzinfo=dt.UTC)
-    return d.timestamp()
-
-
 def read_gpx(path: Path) -> GpsTrack:
-    import gpxpy
-
     try:
         gpx = gpxpy.parse(path.read_text(encoding="utf-8", errors="replace"))
     except Exception as exc:
@@ -149,7 +129,7 @@ def read_gpx(path: Path) -> GpsTrack:
                 if p.time is None:
                     dropped["no time"] += 1
                     continue
-                t.append(_utc(p.time))
+                t.append(utc_seconds(p.time))
                 lat.append(p.latitude)
                 lon.append(p.longitude)
                 sp.append(p.speed if p.speed is not None else np.nan)
@@ -157,41 +137,60 @@ def read_gpx(path: Path) -> GpsTrack:
 
 
 def read_nmea(path: Path) -> GpsTrack:
-    fixes: dict[float, list] = {}
     dropped = {"checksum": 0, "void or estimated": 0, "unparsable": 0}
-    day: dt.date | None = None
-    pending_gga = []
-    for line in path.read_text(encoding="ascii", errors="replace").splitlines():
-        line = line.strip()
-        if not line.startswith("$"):
-            continue
+    lines = (ln.strip() for ln in path.read_text(encoding="ascii", errors="replace").splitlines())
+    rows = nmea_fixes(((math.nan, ln) for ln in lines if ln.startswith("$")), dropped, "void or estimated")
+    if not rows:
+        raise EgovidError(f"{path} contains no valid NMEA RMC/GGA fixes", _FIX)
+    arr = np.array(rows, dtype=float)
+    return _finish(arr[:, 0], arr[:, 2], arr[:, 3], arr[:, 4], arr[:, 5], str(path), dropped)
+
+
+def nmea_fixes(
+    sentences: Iterable[tuple[float, str]], dropped: dict[str, int], void: str
+) -> list[tuple[float, float, float, float, float, float]]:
+    """The fixes of NMEA 0183 sentences, each given with a tag (the video time of the text sample
+    it came in, NaN for a log file): rows (UTC seconds, tag, latitude, longitude, speed m/s,
+    bearing degrees) sorted by time, one per UTC time.
+
+    The merge rule of every NMEA reader: RMC sentences with a fix (:func:`rmc_has_fix`) give
+    date, time, position, speed and course (a later RMC of the same time wins); GGA sentences of
+    fix quality 1-5 add positions, dated by the last RMC's date, at times no RMC has (the first
+    GGA of a time wins). Sentences with a bad checksum or unparsable are counted in ``dropped``
+    (:func:`parse_nmea`), those without a fix under ``dropped[void]``."""
+    rmc: dict[float, tuple] = {}
+    gga: list[tuple] = []
+    day = None
+    for tag, line in sentences:
         msg = parse_nmea(line, dropped)
         if msg is None:
             continue
-        kind = msg.sentence_type
-        if kind == "RMC":
+        if msg.sentence_type == "RMC":
             if not rmc_has_fix(msg):
-                dropped["void or estimated"] += 1
+                dropped[void] += 1
                 continue
             day = msg.datestamp
-            t = _utc(dt.datetime.combine(msg.datestamp, msg.timestamp))
-            spd = float(msg.spd_over_grnd) * 0.514444 if msg.spd_over_grnd not in (None, "") else np.nan
-            brg = float(msg.true_course) if msg.true_course not in (None, "") else np.nan
-            fixes[t] = [msg.latitude, msg.longitude, spd, brg]
-        elif kind == "GGA":
+            utc = utc_seconds(dt.datetime.combine(msg.datestamp, msg.timestamp))
+            speed = as_float(msg.spd_over_grnd) * KNOT
+            rmc[utc] = (utc, tag, msg.latitude, msg.longitude, speed, as_float(msg.true_course))
+        elif msg.sentence_type == "GGA":
             if not msg.timestamp or str(msg.gps_qual) in ("0", "6", ""):
-                dropped["void or estimated"] += 1
+                dropped[void] += 1
                 continue
-            pending_gga.append((msg.timestamp, msg.latitude, msg.longitude))
-    if day is not None:
-        for ts, la, lo in pending_gga:
-            t = _utc(dt.datetime.combine(day, ts))
-            fixes.setdefault(t, [la, lo, np.nan, np.nan])
-    if not fixes:
-        raise EgovidError(f"{path} contains no valid NMEA RMC/GGA fixes", _FIX)
-    ts = sorted(fixes)
-    arr = np.array([fixes[k] for k in ts], dtype=float)
-    return _finish(ts, arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], str(path), dropped)
+            gga.append((msg.timestamp, tag, msg.latitude, msg.longitude))
+    fixes = dict(rmc)
+    for ts, tag, lat, lon in gga if day is not None else ():
+        utc = utc_seconds(dt.datetime.combine(day, ts))
+        fixes.setdefault(utc, (utc, tag, lat, lon, math.nan, math.nan))
+    return [fixes[t] for t in sorted(fixes)]
+
+
+def as_float(v) -> float:
+    """``v`` as a float; NaN when it is missing or not a number."""
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
 
 
 def _parse_time(text: str) -> float:
@@ -201,7 +200,7 @@ def _parse_time(text: str) -> float:
     except ValueError:
         pass
     try:
-        return _utc(dt.datetime.fromisoformat(s.replace("Z", "+00:00")))
+        return iso_to_utc(s)
     except ValueError:
         raise EgovidError(f"GPS time {s!r} is neither ISO 8601 nor epoch seconds", _FIX) from None
 
@@ -241,6 +240,18 @@ def read_csv(path: Path) -> GpsTrack:
     return _finish(t, lat, lon, sp, be, str(path), {})
 
 
+def gps_beside(video: Path) -> Path:
+    """The GPS file beside a video: same name, extension .gpx, .nmea or .csv (either case)."""
+    for ext in GPS_EXTENSIONS:
+        for cand in (video.with_suffix(ext), video.with_suffix(ext.upper())):
+            if cand.exists():
+                return cand
+    raise EgovidError(
+        f"no GPS track for {video.name}: no {video.stem}.gpx, .nmea or .csv beside it",
+        "give the drive's GPS log with --gps FILE",
+    )
+
+
 def read_track(path: str | os.PathLike) -> GpsTrack:
     """Read a GPS track, recognising GPX, NMEA or CSV by content; clear errors otherwise."""
     p = Path(path)
@@ -265,8 +276,6 @@ def read_track(path: str | os.PathLike) -> GpsTrack:
 def parse_nmea(line: str, dropped: dict) -> object | None:
     """One NMEA 0183 sentence parsed by pynmea2 (checksum checked), or None with the reason
     counted in ``dropped`` ("checksum" or "unparsable")."""
-    import pynmea2
-
     try:
         return pynmea2.parse(line.strip(), check=True)
     except pynmea2.ChecksumError:

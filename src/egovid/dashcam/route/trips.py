@@ -23,7 +23,8 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from egovid.core.video import Frame
+from egovid.core.errors import EgovidError
+from egovid.core.video import Frame, iter_frames
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".ts", ".m4v", ".mts", ".webm")
 KINDS = ("drive", "event", "parking")
@@ -118,8 +119,6 @@ def file_channel(path: str | os.PathLike) -> str:
 def expand_inputs(paths: Iterable[str | os.PathLike]) -> list[Path]:
     """The video files named, folders searched recursively (hidden entries skipped), in name order
     within each folder; a path named twice counts once. A folder without videos is an error."""
-    from egovid.core.errors import EgovidError
-
     out: list[Path] = []
     seen: set[Path] = set()
     for raw in paths:
@@ -246,8 +245,6 @@ def iter_trip_frames(paths: list[str | os.PathLike], **kwargs) -> Iterator[Frame
     """The frames of a trip's files back to back, as one video: indices continue from file to file
     (``kwargs`` go to :func:`egovid.core.video.iter_frames`, e.g. ``i420=True``). Times are those of
     each file (seconds from its own first frame)."""
-    from egovid.core.video import iter_frames
-
     base = 0
     for p in paths:
         n = 0

@@ -38,6 +38,9 @@ from egovid.core.errors import EgovidError
 MODEL_FPS = 30.0
 #: Frame rates within this relative distance of MODEL_FPS are scored without resampling.
 SAME_RATE_TOLERANCE = 0.01
+#: The thesis' bias ``b`` of position-error estimation, degrees: the 3D model (VE, SVE) and 2D-VE.
+BIAS_3D_DEG = 0.0183
+BIAS_2D_DEG = 0.038
 
 
 @dataclass(frozen=True)
@@ -60,7 +63,7 @@ class ViewingModel:
 
     d_over_f: float = 4.0
     mar_deg: float = 0.02
-    bias_deg: float = 0.0183
+    bias_deg: float = BIAS_3D_DEG
     saccade_frames: int = 6
     window_frames: int = 10
     t_min_s: float = 0.04
@@ -69,7 +72,7 @@ class ViewingModel:
     @classmethod
     def model_2d(cls) -> ViewingModel:
         """The 2D-VE defaults: b = 0.038°, 5-frame saccade, N = 30-frame segments."""
-        return cls(bias_deg=0.038, saccade_frames=5, window_frames=30)
+        return cls(bias_deg=BIAS_2D_DEG, saccade_frames=5, window_frames=30)
 
     def with_(self, **changes) -> ViewingModel:
         """A copy with some parameters changed (validated)."""
@@ -82,7 +85,7 @@ class ViewingModel:
         checks = [
             (self.d_over_f > 0.1 and self.d_over_f < 100, f"d/f = {self.d_over_f} (use 1–20; thesis 4)"),
             (0 < self.mar_deg < 1, f"MAR = {self.mar_deg}° (thesis 0.02°)"),
-            (0 <= self.bias_deg < 1, f"bias b = {self.bias_deg}° (thesis 0.0183°)"),
+            (0 <= self.bias_deg < 1, f"bias b = {self.bias_deg}° (thesis {BIAS_3D_DEG}°)"),
             (self.saccade_frames >= 1, f"saccade of {self.saccade_frames} frames"),
             (self.window_frames >= 3, f"window of {self.window_frames} frames"),
             (0 < self.t_min_s < self.t_max_s, f"eye-crossing range {self.t_min_s}–{self.t_max_s} s"),

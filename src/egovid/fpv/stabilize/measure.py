@@ -20,9 +20,11 @@ import numpy as np
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.metrics.itf import ITFAccumulator
 from egovid.core.metrics.jitter import ShiftPath, high_pass_rms
+from egovid.core.motion.estimate import estimate_motion
 from egovid.core.video import iter_frames, probe
 from egovid.fpv.perception.model import ViewingModel, to_model_rate
 from egovid.fpv.perception.score import score_angles
+from egovid.fpv.perception.ve2d import ve2d_video
 from egovid.fpv.stabilize.fpm import motion_anchors, pure_fpm
 
 
@@ -115,9 +117,6 @@ def measure_video(
 ) -> VideoMeasures:
     """Measure a decoded video: motion (re-estimated unless given as (K, 3) degrees), VE, SVE,
     pure-FPM VE, 2D-VE, masked ITF and jitter."""
-    from egovid.core.motion.estimate import estimate_motion
-    from egovid.fpv.perception.ve2d import ve2d_video
-
     info = probe(video)
     estimated = None
     times = None

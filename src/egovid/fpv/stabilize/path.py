@@ -32,6 +32,7 @@ grows linearly with length.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -275,6 +276,40 @@ def _solve_window(
     return np.stack([x[c[0]], x[c[1]], x[c[2]], x[u]], axis=1)
 
 
+def _solve_blocks(
+    original: np.ndarray,
+    plan: np.ndarray,
+    B: sp.csr_matrix,
+    intr: Intrinsics,
+    min_keep: float,
+    weights: PathWeights,
+    H: float,
+    margin: np.ndarray,
+    keep0: np.ndarray,
+    win: int,
+    ovl: int,
+) -> np.ndarray:
+    """(m, 4) B-spline coefficients of the whole clip, solved in windows of ``win`` coefficients
+    overlapping by ``ovl``; each window's first rows are tied to the previous window's result."""
+    n, m = B.shape
+    first = np.asarray(B.indices.reshape(n, 4)[:, 0])  # first coefficient of each frame
+    coef = np.zeros((m, 4))
+    start, head = 0, None
+    while True:
+        stop = m if m - start <= win + ovl // 2 else start + win
+        frames = np.flatnonzero((first >= start) & (first + 4 <= stop))
+        sub = B[frames][:, start:stop]
+        cw = _solve_window(
+            original[frames], plan[frames], sub, intr, min_keep, weights, H, margin[frames], keep0[frames], head
+        )
+        keep_to = stop if stop == m else stop - ovl
+        coef[start:keep_to] = cw[: keep_to - start]
+        if stop == m:
+            return coef
+        head = cw[keep_to - start - 3 : keep_to - start]
+        start = keep_to - 3
+
+
 def fit_path(
     original: np.ndarray,
     plan: np.ndarray,
@@ -292,8 +327,6 @@ def fit_path(
     most ``max_zoom`` covers, with that zoom per frame (see the module docstring). The detour
     and the zoom are cubic B-splines with ``knots_per_second`` knots; the programme is solved in
     windows of ``window_s`` seconds overlapping by ``overlap_s``."""
-    import time
-
     if not (1.0 <= max_zoom <= 4.0) or not np.isfinite(max_zoom):
         raise EgovidError(f"maximum zoom {max_zoom} is outside 1-4", "use e.g. --max-zoom 1.1")
     t0 = time.perf_counter()
@@ -304,40 +337,15 @@ def fit_path(
     spacing = max(fps / knots_per_second, 1.0)  # frames between knots
     H = spacing * 30.0 / fps  # the same in frames at 30 fps
     B = bspline_basis(n, spacing)
-    m = B.shape[1]
     win = max(round(window_s * knots_per_second), 12)
     ovl = min(max(round(overlap_s * knots_per_second), 6), win // 2)
     min_keep = 1.0 / max_zoom
     margin = np.full(n, margin_px)
     keep0 = np.full(n, 0.5 * (1.0 + min_keep))
-    first = np.asarray(B.indices.reshape(n, 4)[:, 0])  # first coefficient of each frame
     notes: list[str] = []
     passes = 0
     for passes in range(1, 4):  # noqa: B007
-        coef = np.zeros((m, 4))
-        start, head = 0, None
-        while True:
-            stop = m if m - start <= win + ovl // 2 else start + win
-            frames = np.flatnonzero((first >= start) & (first + 4 <= stop))
-            sub = B[frames][:, start:stop]
-            cw = _solve_window(
-                original[frames],
-                plan[frames],
-                sub,
-                intr,
-                min_keep,
-                weights,
-                H,
-                margin[frames],
-                keep0[frames],
-                head,
-            )
-            keep_to = stop if stop == m else stop - ovl
-            coef[start:keep_to] = cw[: keep_to - start]
-            if stop == m:
-                break
-            head = cw[keep_to - start - 3 : keep_to - start]
-            start = keep_to - 3
+        coef = _solve_blocks(original, plan, B, intr, min_keep, weights, H, margin, keep0, win, ovl)
         curve = B @ coef
         path = plan + curve[:, :3]
         keep = 1.0 - curve[:, 3] / 100.0

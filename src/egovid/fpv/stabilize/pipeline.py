@@ -1,9 +1,10 @@
 """The stabiliser end to end: motion → planned motion → path the frame affords → rendered video →
 measured video.
 
-``stabilize()`` is what ``egovid fpv stabilize`` runs:
+``stabilize()`` runs the stabiliser on a video and its camera motion (``egovid fpv stabilize``
+runs it through :func:`egovid.fpv.stabilize.run.stabilize_video`, which resolves that motion):
 
-1. the camera motion of the input (estimated, or given);
+1. the camera motion of the input (given, or estimated from the pictures);
 2. the thesis' plan (ch. 9, :mod:`egovid.fpv.stabilize.optimize`) at the model's 30 fps: roll is
    levelled by default (set to the clip's median roll, so a tilted mount stays as mounted and only
    roll shake goes; ``keep_roll`` treats it like yaw and pitch); ``strength`` blends the original
@@ -32,6 +33,8 @@ import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.errors import EgovidError
+from egovid.core.motion.estimate import estimate_motion
+from egovid.core.motion.source import CameraMotion
 from egovid.core.rotations import matrix_from_euler
 from egovid.core.trajectory import Trajectory
 from egovid.core.video import probe
@@ -40,7 +43,7 @@ from egovid.fpv.perception.score import AXES, check_angles
 from egovid.fpv.stabilize.measure import MotionScores, VideoMeasures, measure_video, motion_scores
 from egovid.fpv.stabilize.optimize import AxisPlan, OptimizeOptions, load_kernels, optimize_axis
 from egovid.fpv.stabilize.path import FittedPath, fit_path
-from egovid.fpv.stabilize.render import RenderStats, content_masks, homographies, render_stabilized
+from egovid.fpv.stabilize.render import BORDERS, RenderStats, content_masks, homographies, render_stabilized
 
 
 def _retention(pure_before: float, pure_after: float) -> float:
@@ -55,7 +58,8 @@ class StabilizeResult:
     thesis' plan), ``path`` (what was rendered); ``keep`` (K,) the share of the frame kept (zoom
     1/keep); scores of the path as ``planned``; ``before``/``after`` measured on the decoded input
     and output (None with ``measure=False``); ``seconds`` per stage (not in :meth:`summary`,
-    which is deterministic)."""
+    which is deterministic); ``camera_motion`` the input's motion where
+    :func:`egovid.fpv.stabilize.run.stabilize_video` estimated it (its times not in ``seconds``)."""
 
     output: str
     times: np.ndarray
@@ -72,11 +76,7 @@ class StabilizeResult:
     fitted: FittedPath | None
     seconds: dict[str, float] = field(default_factory=dict)
     params: dict = field(default_factory=dict)
-
-    @property
-    def edited(self) -> np.ndarray:
-        """The rendered path (alias kept for callers of the thesis' wording)."""
-        return self.path
+    camera_motion: CameraMotion | None = field(default=None, repr=False)
 
     def summary(self) -> dict:
         """JSON-ready results: the same input and options give the same dict (no timings)."""
@@ -130,8 +130,7 @@ def plan_motion(
     The plan is made at the model's 30 fps (the motion is resampled there and the edited motion
     back to the video's frames), so the objective and the easing table mean the same at every
     frame rate; the plans' anchors are in frames at 30 fps."""
-    if not (0.0 <= strength <= 1.0):
-        raise EgovidError(f"strength {strength} is outside [0, 1]", "use e.g. --strength 0.7")
+    check_options(strength)
     model = model or ViewingModel()
     opts = opts or OptimizeOptions()
     a30, _ = to_model_rate(angles, fps, times)
@@ -168,6 +167,21 @@ def plan_motion(
     return edited, plans
 
 
+#: The stability measures the objective can use.
+METHODS = ("ve", "sve")
+
+
+def check_options(strength: float, borders: str = "crop", method: str = "ve") -> None:
+    """Refuse a ``strength`` outside [0, 1], an unknown border mode or stability measure (before
+    any work)."""
+    if borders not in BORDERS:
+        raise EgovidError(f"unknown border mode {borders!r}", f"choose one of {', '.join(BORDERS)}")
+    if method not in METHODS:
+        raise EgovidError(f"unknown method {method!r}", "choose ve or sve")
+    if not (0.0 <= strength <= 1.0):
+        raise EgovidError(f"strength {strength} is outside [0, 1]", "use e.g. --strength 0.7")
+
+
 def stabilize(
     src: str | os.PathLike,
     dst: str | os.PathLike,
@@ -187,32 +201,32 @@ def stabilize(
 ) -> StabilizeResult:
     """Stabilise ``src`` into ``dst`` keeping the intentional first-person motion.
 
-    ``motion`` reuses a previously estimated trajectory (it must have one entry per frame).
+    ``motion`` reuses a previously estimated trajectory (it must have one entry per frame; without
+    it the motion is estimated from the pictures with ``intrinsics``).
     ``progress(stage, done, total)`` is called with stages ``motion``, ``plan``, ``render`` and
     the measuring stages.
     """
-    from egovid.core.motion.estimate import estimate_motion
-
+    check_options(strength, borders, method)
     t0 = time.perf_counter()
     info = probe(src)
     intr = intrinsics or Intrinsics.default(info.width, info.height)
     model = model or ViewingModel()
     opts = opts or OptimizeOptions(method=method)
     if motion is None:
-        # The planner's compiled objective takes ~0.5 s to load; the motion stage leaves the
-        # interpreter free most of the time (OpenCV and compiled fits run without the GIL).
-        loader = threading.Thread(target=load_kernels, name="load-planner", daemon=True)
-        loader.start()
-        cb = (lambda d, t: progress("motion", d, t)) if progress else None
-        motion = estimate_motion(src, intr, progress=cb).trajectory
-        loader.join()  # done long before; no thread may hold a lock when the planner forks
+        motion = _estimate(src, intr, _stage(progress, "motion"))
     t1 = time.perf_counter()
     angles = motion.euler()
     fps = info.fps
     check_angles(angles, fps, model)  # too short to score: say so before writing anything
-    cb = (lambda d, t: progress("plan", d, t)) if progress else None
     plan, plans = plan_motion(
-        angles, fps, intr, strength=strength, keep_roll=keep_roll, model=model, opts=opts, progress=cb
+        angles,
+        fps,
+        intr,
+        strength=strength,
+        keep_roll=keep_roll,
+        model=model,
+        opts=opts,
+        progress=_stage(progress, "plan"),
     )
     fitted = None
     path, keep = plan, np.ones(len(plan))
@@ -223,9 +237,16 @@ def stabilize(
     R_old = matrix_from_euler(angles[:, 0], angles[:, 1], angles[:, 2])
     R_new = matrix_from_euler(path[:, 0], path[:, 1], path[:, 2])
     H = homographies(R_old, R_new, intr)
-    cb = (lambda d, t: progress("render", d, t)) if progress else None
     stats = render_stabilized(
-        src, dst, H, keep=keep, borders=borders, R_new=R_new, intrinsics=intr, crf=crf, progress=cb
+        src,
+        dst,
+        H,
+        keep=keep,
+        borders=borders,
+        R_new=R_new,
+        intrinsics=intr,
+        crf=crf,
+        progress=_stage(progress, "render"),
     )
     t3 = time.perf_counter()
     scores = {"model": model, "anchor_threshold": opts.anchor_threshold}
@@ -237,38 +258,52 @@ def stabilize(
         before = measure_video(src, intr, motion=angles, **scores, progress=progress)
         after = measure_video(dst, intr, masks=masks, **scores, progress=progress)
     t4 = time.perf_counter()
+    params = _params(strength, borders, max_zoom, keep_roll, method, intr, opts, model, crf)
+    seconds = {"motion": t1 - t0, "plan": t2 - t1, "render": t3 - t2, "measure": t4 - t3, "total": t4 - t0}
     return StabilizeResult(
-        output=str(dst),
-        times=motion.times,
-        original=angles,
-        plan=plan,
-        path=path,
-        keep=keep,
-        plans=plans,
-        planned=planned,
-        planned_before=planned_before,
-        before=before,
-        after=after,
-        render=stats,
-        fitted=fitted,
-        seconds={
-            "motion": t1 - t0,
-            "plan": t2 - t1,
-            "render": t3 - t2,
-            "measure": t4 - t3,
-            "total": t4 - t0,
-        },
-        params={
-            "strength": strength,
-            "borders": borders,
-            "max_zoom": max_zoom if borders == "crop" else None,
-            "keep_roll": keep_roll,
-            "method": method,
-            "focal_px": intr.focal,
-            "hfov_deg": intr.hfov_deg,
-            "anchor_threshold_deg": opts.anchor_threshold,
-            "d_over_f": model.d_over_f,
-            "bias_deg": model.bias_deg,
-            "crf": crf,
-        },
-    )
+        str(dst), motion.times, angles, plan, path, keep, plans, planned, planned_before, before, after, stats,
+        fitted, seconds, params,
+    )  # fmt: skip
+
+
+def _params(
+    strength: float,
+    borders: str,
+    max_zoom: float,
+    keep_roll: bool,
+    method: str,
+    intr: Intrinsics,
+    opts: OptimizeOptions,
+    model: ViewingModel,
+    crf: int,
+) -> dict:
+    """The settings of a run, as :meth:`StabilizeResult.summary` reports them."""
+    return {
+        "strength": strength,
+        "borders": borders,
+        "max_zoom": max_zoom if borders == "crop" else None,
+        "keep_roll": keep_roll,
+        "method": method,
+        "focal_px": intr.focal,
+        "hfov_deg": intr.hfov_deg,
+        "anchor_threshold_deg": opts.anchor_threshold,
+        "d_over_f": model.d_over_f,
+        "bias_deg": model.bias_deg,
+        "crf": crf,
+    }
+
+
+def _estimate(src: str | os.PathLike, intr: Intrinsics, progress: Callable[[int, int], None] | None) -> Trajectory:
+    """The camera motion of ``src`` from its pictures, while the planner's kernels load."""
+    # The planner's compiled objective takes ~0.5 s to load; the motion stage leaves the
+    # interpreter free most of the time (OpenCV and compiled fits run without the GIL).
+    loader = threading.Thread(target=load_kernels, name="load-planner", daemon=True)
+    loader.start()
+    motion = estimate_motion(src, intr, progress=progress).trajectory
+    loader.join()  # done long before; no thread may hold a lock when the planner forks
+    return motion
+
+
+def _stage(progress: Callable[[str, int, int], None] | None, stage: str) -> Callable[[int, int], None] | None:
+    """``progress`` for one stage, as ``(done, total)``."""
+    return (lambda d, t: progress(stage, d, t)) if progress else None

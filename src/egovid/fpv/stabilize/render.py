@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -33,7 +33,7 @@ import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.errors import EgovidError
-from egovid.core.video import VideoWriter, iter_frames, probe
+from egovid.core.video import Frame, VideoWriter, iter_frames, probe
 
 BORDERS = ("black", "crop", "fill")
 #: Luma -> chroma pixel coordinates of 4:2:0 (chroma sited between luma pixels).
@@ -120,6 +120,70 @@ def _warp_i420(img: np.ndarray, H: np.ndarray, w: int, h: int, border: tuple[int
     return out
 
 
+class _Mosaic:
+    """The ``fill`` border mode: uncovered pixels of output frame k taken from output frame k - 1
+    re-projected to frame k's orientation and zoom (``masks(k)``: frame k's own content)."""
+
+    def __init__(
+        self,
+        masks: Callable[[int], np.ndarray],
+        zoom: np.ndarray,
+        R_new: np.ndarray,
+        intrinsics: Intrinsics,
+        black: tuple[int, int],
+        width: int,
+        height: int,
+    ) -> None:
+        self.masks, self.zoom, self.R_new, self.intr, self.black = masks, zoom, R_new, intrinsics, black
+        self.w, self.h = width, height
+        self.ones = np.full((self.h, self.w), 255, np.uint8)
+
+    def fill(self, out: np.ndarray, prev_out: np.ndarray, k: int) -> None:
+        """Fill the uncovered pixels of the I420 picture ``out`` (frame k) from ``prev_out``, in place."""
+        w, h, Zi, R_new = self.w, self.h, self.zoom, self.R_new
+        mask = self.masks(k)
+        Hp = Zi[k] @ homographies(R_new[k - 1 : k], R_new[k : k + 1], self.intr)[0] @ np.linalg.inv(Zi[k - 1])
+        prev = _warp_i420(prev_out, Hp, w, h, self.black, cv2.BORDER_CONSTANT)
+        prev_ok = cv2.warpPerspective(self.ones, Hp, (w, h), flags=cv2.INTER_NEAREST) > 127
+        use = prev_ok & ~mask
+        out[:h][use] = prev[:h][use]
+        cu = use[::2, ::2]
+        for p in range(2):
+            plane = out[h:].reshape(2, h // 2, w // 2)[p]
+            plane[cu] = prev[h:].reshape(2, h // 2, w // 2)[p][cu]
+
+
+def _pipelined(
+    frames: Iterator[Frame], work: Callable[[Frame], np.ndarray], write: Callable[[np.ndarray, float], None]
+) -> int:
+    """``write(work(frame), frame.time)`` for every frame, in order; returns how many.
+
+    Three stages overlap on threads (PyAV decodes and encodes, OpenCV warps, all without the
+    GIL): the next frame decodes and the previous one encodes while this one is worked on. One
+    job in flight per stage keeps the order and bounds memory to a few frames."""
+    stages = ThreadPoolExecutor(max_workers=2, thread_name_prefix="render")
+    encoding: Future | None = None
+    n = 0
+    try:
+        decoding = stages.submit(next, frames, None)
+        while (frame := decoding.result()) is not None:
+            decoding = stages.submit(next, frames, None)
+            out = work(frame)
+            if encoding is not None:
+                encoding.result()
+            encoding = stages.submit(write, out, frame.time)
+            n += 1
+        if encoding is not None:
+            encoding.result()
+    finally:
+        # Nothing may touch the writer or the decoder once this is left: wait for every job
+        # submitted, not only those held in `encoding` and `decoding` (a signal handled inside
+        # `submit` leaves its job running and unassigned; closing the writer under it crashed the
+        # process on an interrupt).
+        stages.shutdown(wait=True)
+    return n
+
+
 def render_stabilized(
     src: str | os.PathLike,
     dst: str | os.PathLike,
@@ -146,76 +210,45 @@ def render_stabilized(
     H = zoom_about_centre(keep, w, h) @ H
     black = (0 if info.colour.full_range else 16, 128)
     mode = cv2.BORDER_REFLECT if borders == "fill" else cv2.BORDER_CONSTANT
-    ones = np.full((h, w), 255, np.uint8)
     masks = content_masks(H, np.ones(len(H)), w, h)  # H already holds the zoom
-    black_sum = 0.0
-    prev_out = None
+    mosaic = None
+    if borders == "fill" and R_new is not None and intrinsics is not None:
+        mosaic = _Mosaic(masks, zoom_about_centre(keep, w, h), R_new, intrinsics, black, w, h)
+    state = {"prev": None, "black": 0.0}
     t0 = time.perf_counter()
-    n = 0
-    Zi = zoom_about_centre(keep, w, h)
-    # Three stages overlap on threads (PyAV decodes and encodes, OpenCV warps, all without the
-    # GIL): the next frame decodes and the previous one encodes while this one is warped. One
-    # job in flight per stage keeps the order and bounds memory to a few frames.
+
+    def warp(frame: Frame) -> np.ndarray:
+        k = frame.index
+        if k >= len(H):
+            raise EgovidError(
+                f"{src} has more frames than its motion ({len(H)})", "re-estimate the motion of this video"
+            )
+        out = _warp_i420(frame.image, H[k], w, h, black, mode)
+        if mosaic is not None and state["prev"] is not None:
+            mosaic.fill(out, state["prev"], k)
+        if borders != "crop":
+            state["black"] += 1.0 - covered_share(H[k], w, h, masks, k)
+        state["prev"] = out
+        if progress is not None:
+            progress(k + 1, info.frame_count)
+        return out
+
     frames = iter_frames(src, i420=True)
-    stages = ThreadPoolExecutor(max_workers=2, thread_name_prefix="render")
-    decoding = stages.submit(next, frames, None)
-    encoding: Future | None = None
     try:
         # Frame threads, as the ffmpeg command gives x264 (PyAV's default is slice threads,
         # about 25 % slower for a whole video at the same settings).
         with VideoWriter(dst, w, h, info.fps, crf=crf, preset=preset, thread_type=thread_type, keep_from=src) as writer:
-            try:
-                while (frame := decoding.result()) is not None:
-                    decoding = stages.submit(next, frames, None)
-                    k = frame.index
-                    if k >= len(H):
-                        raise EgovidError(
-                            f"{src} has more frames than its motion ({len(H)})", "re-estimate the motion of this video"
-                        )
-                    out = _warp_i420(frame.image, H[k], w, h, black, mode)
-                    if borders == "fill" and prev_out is not None and R_new is not None and intrinsics is not None:
-                        mask = masks(k)
-                        Hp = (
-                            Zi[k]
-                            @ homographies(R_new[k - 1 : k], R_new[k : k + 1], intrinsics)[0]
-                            @ np.linalg.inv(Zi[k - 1])
-                        )
-                        prev = _warp_i420(prev_out, Hp, w, h, black, cv2.BORDER_CONSTANT)
-                        prev_ok = cv2.warpPerspective(ones, Hp, (w, h), flags=cv2.INTER_NEAREST) > 127
-                        use = prev_ok & ~mask
-                        out[:h][use] = prev[:h][use]
-                        cu = use[::2, ::2]
-                        for p in range(2):
-                            plane = out[h:].reshape(2, h // 2, w // 2)[p]
-                            plane[cu] = prev[h:].reshape(2, h // 2, w // 2)[p][cu]
-                    if borders != "crop":
-                        black_sum += 1.0 - covered_share(H[k], w, h, masks, k)
-                    if encoding is not None:
-                        encoding.result()
-                    encoding = stages.submit(writer.write_i420, out, frame.time)
-                    prev_out = out
-                    n += 1
-                    if progress is not None:
-                        progress(n, info.frame_count)
-                if encoding is not None:
-                    encoding.result()
-            finally:
-                # Nothing may touch the writer or the decoder once this block is left: wait for
-                # every job submitted, not only those held in `encoding` and `decoding` (a signal
-                # handled inside `submit` leaves its job running and unassigned; closing the
-                # writer under it crashed the process on an interrupt).
-                stages.shutdown(wait=True)
+            n = _pipelined(frames, warp, writer.write_i420)
             if n != len(H):
                 raise EgovidError(
                     f"{src} decoded {n} frames but its motion has {len(H)}", "re-estimate the motion of this video"
                 )
     finally:
-        stages.shutdown(wait=True)
         frames.close()
     zoom = 1.0 / keep
     return RenderStats(
         n,
-        black_sum / max(n, 1),
+        state["black"] / max(n, 1),
         float(zoom.mean()),
         float(zoom.max()),
         time.perf_counter() - t0,

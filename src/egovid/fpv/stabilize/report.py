@@ -88,9 +88,8 @@ def _thumbnails(source: str, output: str, n_frames: int, count: int = 3, width: 
     return out
 
 
-def write_report(path: str | os.PathLike, res: StabilizeResult, source: str, intr: Intrinsics, fps: float) -> Path:
-    """Write the HTML report of ``res`` to ``path`` (atomically)."""
-    s = res.summary()
+def _scores_rows(s: dict) -> str:
+    """The HTML rows of the planned and measured scores of a run's summary ``s``."""
     pb, pa = s["planned"]["before"], s["planned"]["after"]
     mb = s.get("measured", {}).get("before", {})
     ma = s.get("measured", {}).get("after", {})
@@ -110,10 +109,17 @@ def write_report(path: str | os.PathLike, res: StabilizeResult, source: str, int
         (name, pb.get(key) if planned else None, pa.get(key) if planned else None, mb.get(key), ma.get(key), fm)
         for name, key, fm, planned in rows
     ]
-    table = "\n".join(
+    return "\n".join(
         f"<tr><td>{html.escape(name)}</td>" + "".join(f"<td>{f(x, fm)}</td>" for x in (a, b, c, d)) + "</tr>"
         for name, a, b, c, d, fm in cells
     )
+
+
+def write_report(path: str | os.PathLike, res: StabilizeResult, source: str, intr: Intrinsics, fps: float) -> Path:
+    """Write the HTML report of ``res`` to ``path`` (atomically)."""
+    s = res.summary()
+    ma = s.get("measured", {}).get("after", {})
+    table = _scores_rows(s)
     kept_meas = s.get("fpmi_retention_measured")
     thumbs = "".join(
         f'<figure><img src="{uri}" alt="frame {k}"><figcaption>frame {k}: input | output</figcaption></figure>'

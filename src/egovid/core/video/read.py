@@ -1,0 +1,193 @@
+"""Decoding a video frame by frame (:func:`iter_frames`, never the whole video), in display
+orientation and presentation order, and counting its frames exactly (:func:`count_frames`)."""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import av
+import numpy as np
+
+from egovid.core.errors import EgovidError
+from egovid.core.video.container import FIX_VIDEO, cut_accepted, ffmpeg_reason, open_video, packet_cut
+from egovid.core.video.orientation import rotate_i420, rotation_of, to_display
+
+#: Frames held back to put a decoder's output into presentation order.
+_REORDER_DEPTH = 4
+
+
+@dataclass
+class Frame:
+    """One decoded frame: ``image`` is HxWx3 BGR uint8 (or HxW grey), ``time`` in seconds."""
+
+    index: int
+    time: float
+    image: np.ndarray
+
+
+def _decoded(container: av.container.InputContainer, stream: av.video.VideoStream, path: str | os.PathLike):
+    """Decode ``stream``; for a truncated file the caller accepted, stop at the cut and flush."""
+    if not cut_accepted(path):
+        yield from container.decode(stream)
+        return
+    size = Path(path).stat().st_size
+    try:
+        for packet in container.demux(stream):
+            if packet.size and packet_cut(packet, size):
+                break
+            yield from packet.decode()
+    except av.error.FFmpegError:
+        pass
+    with contextlib.suppress(av.error.FFmpegError):
+        yield from stream.decode(None)
+
+
+def iter_frames(
+    path: str | os.PathLike,
+    *,
+    gray: bool = False,
+    i420: bool = False,
+    scale: float | None = None,
+    max_frames: int | None = None,
+) -> Iterator[Frame]:
+    """Decode ``path`` frame by frame.
+
+    Parameters
+    ----------
+    gray:
+        Yield HxW uint8 luma instead of HxWx3 BGR (cheaper: no colour conversion).
+    i420:
+        Yield the decoded YUV 4:2:0 picture as one (H*3/2, W) uint8 array (Y, then U, then V),
+        without any colour conversion (for re-encoding bit-exactly).
+    scale:
+        Resize by this factor (0 < scale <= 1) inside FFmpeg's scaler, e.g. 0.5 for half size.
+    max_frames:
+        Stop after this many frames.
+
+    Frames come in display orientation and in presentation order (a small buffer reorders frames
+    a decoder hands out of order); ``time`` is the presentation time in seconds from the first
+    frame, from the timestamps (so variable frame rate is kept), made strictly increasing (a
+    repeated or backward timestamp becomes the previous one plus a nominal frame interval).
+    Raises :class:`EgovidError` if the video is unreadable or stops decoding midway.
+    """
+    if scale is not None and not (0.0 < scale <= 1.0):
+        raise EgovidError(f"scale {scale} must be in (0, 1]", "use e.g. 0.5 for half size")
+    container = open_video(path)
+    try:
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        rate = float(stream.average_rate or stream.guessed_rate or 30)
+        nominal = 1.0 / rate if rate > 0 else 1.0 / 30
+        tb = float(stream.time_base) if stream.time_base else None
+        reorder = _Reorder(_REORDER_DEPTH)
+        timeline = _Timeline(nominal)
+        decoded = 0
+        try:
+            for frame in _decoded(container, stream, path):
+                img = _picture(frame, gray, i420, scale)
+                pts = frame.pts if frame.pts is not None else frame.dts
+                t = float(pts * tb) if (pts is not None and tb) else decoded * nominal
+                decoded += 1
+                for item in reorder.push(t, img):
+                    yield timeline.frame(*item)
+                    if max_frames is not None and timeline.index >= max_frames:
+                        return
+        except av.error.FFmpegError as exc:
+            raise EgovidError(
+                f"{path} stops decoding at frame {decoded} ({ffmpeg_reason(exc)})",
+                "the file is corrupt or truncated; re-export or repair it",
+            ) from None
+        for item in reorder.flush():
+            yield timeline.frame(*item)
+            if max_frames is not None and timeline.index >= max_frames:
+                return
+        if timeline.index == 0:
+            raise EgovidError(f"video {path} has no frames", FIX_VIDEO)
+    finally:
+        container.close()
+
+
+def _picture(frame: av.VideoFrame, gray: bool, i420: bool, scale: float | None) -> np.ndarray:
+    """One decoded frame as :func:`iter_frames` yields its image: pixel format, scale, display
+    orientation."""
+    fmt = "yuv420p" if i420 else ("gray" if gray else "bgr24")
+    if scale is not None and scale != 1.0:
+        sw = max(2, round(frame.width * scale))
+        sh = max(2, round(frame.height * scale))
+        img = frame.to_ndarray(format=fmt, width=sw, height=sh, interpolation="AREA")
+    else:
+        img = frame.to_ndarray(format=fmt)
+    rotation = rotation_of(frame)
+    return rotate_i420(img, rotation) if i420 else to_display(img, rotation)
+
+
+class _Timeline:
+    """Numbers the frames leaving the reorder buffer and makes their times start at 0 and
+    increase strictly (a repeated or backward time becomes the previous one plus ``nominal``)."""
+
+    def __init__(self, nominal: float) -> None:
+        self.nominal = nominal
+        self.t0: float | None = None
+        self.prev: float | None = None
+        self.index = 0
+
+    def frame(self, t: float, img: np.ndarray) -> Frame:
+        if self.t0 is None:
+            self.t0 = t
+        t -= self.t0
+        if self.prev is not None and t <= self.prev:
+            t = self.prev + self.nominal
+        self.prev = t
+        frame = Frame(self.index, t, img)
+        self.index += 1
+        return frame
+
+
+class _Reorder:
+    """A small min-heap on presentation time: frames leave in time order, ``depth`` behind."""
+
+    def __init__(self, depth: int) -> None:
+        self.depth = depth
+        self.heap: list = []
+        self.seq = 0
+
+    def push(self, t: float, img: np.ndarray):
+        heapq.heappush(self.heap, (t, self.seq, img))
+        self.seq += 1
+        while len(self.heap) > self.depth:
+            t, _, img = heapq.heappop(self.heap)
+            yield t, img
+
+    def flush(self):
+        while self.heap:
+            t, _, img = heapq.heappop(self.heap)
+            yield t, img
+
+
+def read_frames(path: str | os.PathLike, **kwargs) -> tuple[np.ndarray, np.ndarray]:
+    """Decode a short video completely: ``(images (N,H,W[,3]) uint8, times (N,) seconds)``.
+
+    Only for clips that fit in memory (tests, synthetic content); long videos use
+    :func:`iter_frames`.
+    """
+    frames = list(iter_frames(path, **kwargs))
+    return np.stack([f.image for f in frames]), np.array([f.time for f in frames])
+
+
+def count_frames(path: str | os.PathLike) -> int:
+    """Exact number of decodable frames (demuxes and decodes; no colour conversion)."""
+    container = open_video(path)
+    try:
+        n = 0
+        for _ in _decoded(container, container.streams.video[0], path):
+            n += 1
+        return n
+    except av.error.FFmpegError as exc:
+        raise EgovidError(f"{path} stops decoding at frame {n} ({ffmpeg_reason(exc)})", FIX_VIDEO) from None
+    finally:
+        container.close()

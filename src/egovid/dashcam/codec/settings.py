@@ -1,0 +1,64 @@
+"""How a segment is encoded: the one definition of the encoder settings every codec backend
+reads (:mod:`egovid.dashcam.codec.registry`). The named presets that fill them in live in one
+place, :data:`egovid.dashcam.ingest.options.PRESETS`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from egovid.core.errors import EgovidError
+
+#: Speed ranges per codec: libvpx cpu-used, SVT-AV1 preset (higher = faster in both).
+SPEEDS = {"vp9": (0, 9), "av1": (0, 13)}
+
+
+@dataclass(frozen=True)
+class EncoderSettings:
+    """``codec``: ``vp9`` (libvpx; can code against the older drive) or ``av1`` (SVT-AV1, decoded
+    with dav1d; standalone only); fixed quantiser ``q`` (0-63: libvpx's quantiser, SVT-AV1's CRF);
+    ``speed``: libvpx cpu-used (0-9) or SVT-AV1 preset (0-13); ``realtime``: libvpx's realtime
+    deadline; ``threads``: encoder threads (SVT-AV1: its logical processors); ``tile_columns``
+    (log2) and ``row_mt``: libvpx's multi-threading (the bitstream decodes to the same pictures
+    whatever the threads); coding structure ``gop`` (VP9 only: 1 = low delay; G > 1 = every G-th
+    frame an *anchor* predicted from the anchor before it, the frames between coded after it from
+    the previous frame and the anchor ahead, at quantiser ``q + gop_dq``; see
+    :mod:`egovid.dashcam.codec.segment`; SVT-AV1 chooses its own hierarchical structure) and
+    ``refresh``, the random-access period in frames (0 = only the first frame; the keyframe
+    spacing of an AV1 segment); ``start_speed``: VP9 cpu-used for the first frame of a joint run,
+    the one predicted from the baseline alone (0 = ``speed``)."""
+
+    q: int
+    speed: int
+    codec: str = "vp9"
+    realtime: bool = False
+    fps: int = 30
+    gop: int = 1
+    gop_dq: int = 12
+    refresh: int = 0
+    threads: int = 1
+    tile_columns: int = 0
+    row_mt: bool = False
+    start_speed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.codec not in SPEEDS:
+            raise EgovidError(f"unknown codec {self.codec!r}", f"choose one of {', '.join(SPEEDS)}")
+        if not 0 <= self.q <= 63:
+            raise EgovidError(f"quantiser {self.q} is outside 0-63", "use e.g. --q 32")
+        lo, hi = SPEEDS[self.codec]
+        if not lo <= self.speed <= hi:
+            raise EgovidError(f"--speed {self.speed} is outside {lo}-{hi} for {self.codec}", "use the preset's")
+        if not 0 <= self.start_speed <= 9:
+            raise EgovidError(f"run-start cpu-used {self.start_speed} is outside 0-9", "use 0 (= speed) or e.g. 5")
+        if not 1 <= self.threads <= 64:
+            raise EgovidError(f"{self.threads} encoder threads is outside 1-64", "use e.g. 2")
+        if not 0 <= self.tile_columns <= 6:
+            raise EgovidError(f"tile columns 2^{self.tile_columns} is outside 2^0-2^6", "use e.g. 1")
+        if self.refresh != 0 and not 2 <= self.refresh <= 65535:
+            raise EgovidError(
+                f"random-access period {self.refresh} frames is outside 2-65535", "use 0 (none) or e.g. 24"
+            )
+        if not 1 <= self.gop <= 64:
+            raise EgovidError(f"GOP length {self.gop} is outside 1-64", "use 1 (low delay) or 8")
+        if not 0 <= self.gop_dq <= 63:
+            raise EgovidError(f"quantiser offset {self.gop_dq} is outside 0-63", "use e.g. 12")

@@ -1,0 +1,107 @@
+"""``egovid fpv stabilize`` as one function: the camera and its motion resolved the way every fpv
+command resolves them, the stabiliser run (:func:`egovid.fpv.stabilize.pipeline.stabilize`), and
+the outputs asked for written (the input and rendered motion CSVs, the JSON summary, the HTML
+report)."""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+from egovid.core.camera.resolve import resolve_camera
+from egovid.core.errors import EgovidError
+from egovid.core.files import atomic_write_text
+from egovid.core.motion.source import camera_motion
+from egovid.core.trajectory import Trajectory, read_motion_csv, write_motion_csv
+from egovid.core.video import count_frames, probe
+from egovid.fpv.stabilize.optimize import OptimizeOptions
+from egovid.fpv.stabilize.pipeline import StabilizeResult, check_options, stabilize
+from egovid.fpv.stabilize.report import write_report
+
+__all__ = ["check_options", "saved_motion_paths", "stabilize_video"]
+
+
+def saved_motion_paths(prefix: str | os.PathLike) -> tuple[Path, Path]:
+    """Where ``--save-motion PREFIX`` writes the input and the rendered motion CSVs:
+    ``PREFIX.input.csv`` and ``PREFIX.output.csv``."""
+    p = Path(prefix)
+    return p.with_name(p.name + ".input.csv"), p.with_name(p.name + ".output.csv")
+
+
+def stabilize_video(
+    src: str | os.PathLike,
+    dst: str | os.PathLike,
+    *,
+    source: str = "auto",
+    focal: float | None = None,
+    hfov: float | None = None,
+    motion: str | os.PathLike | Trajectory | None = None,
+    strength: float = 1.0,
+    borders: str = "crop",
+    max_zoom: float = 1.10,
+    keep_roll: bool = False,
+    method: str = "ve",
+    anchor_threshold: float = 0.5,
+    crf: int = 18,
+    measure: bool = True,
+    save_motion: str | os.PathLike | None = None,
+    json_out: str | os.PathLike | None = None,
+    report: str | os.PathLike | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> StabilizeResult:
+    """Stabilise ``src`` into ``dst`` keeping its intentional motion.
+
+    The camera motion comes from ``motion``, a motion CSV or a trajectory (one row per frame,
+    with the file's intrinsics or ``focal`` pixels / ``hfov`` degrees), else from ``source`` (see
+    :func:`~egovid.core.motion.source.camera_motion`). ``strength``, ``borders``, ``max_zoom``,
+    ``keep_roll``, ``method``, ``anchor_threshold`` (degrees), ``crf`` and ``measure`` go to
+    :func:`~egovid.fpv.stabilize.pipeline.stabilize`. Writes the motion CSVs of
+    :func:`saved_motion_paths` (``save_motion``), the deterministic JSON summary (``json_out``) and
+    the HTML report (``report``) when given. ``progress(stage, done, total)`` reports the stages.
+    """
+    fps = probe(src).fps
+    intr = resolve_camera(src, focal, hfov).intrinsics
+    traj = motion if isinstance(motion, Trajectory) or motion is None else _motion_of(src, motion)
+    cm = None
+    if traj is None:
+        cm = camera_motion(src, source, focal=focal, hfov=hfov, progress=progress)
+        traj, intr = cm.trajectory, cm.camera.intrinsics
+    res = stabilize(
+        src,
+        dst,
+        intrinsics=intr,
+        motion=traj,
+        strength=strength,
+        borders=borders,
+        max_zoom=max_zoom,
+        keep_roll=keep_roll,
+        method=method,
+        opts=OptimizeOptions(anchor_threshold=anchor_threshold, method=method),
+        crf=crf,
+        measure=measure,
+        progress=progress,
+    )
+    res.camera_motion = cm
+    if save_motion is not None:
+        before, after = saved_motion_paths(save_motion)
+        write_motion_csv(before, Trajectory.from_euler(res.times, res.original))
+        write_motion_csv(after, Trajectory.from_euler(res.times, res.path))
+    if json_out is not None:
+        atomic_write_text(json_out, json.dumps(res.summary(), indent=1, default=float))
+    if report is not None:
+        write_report(report, res, str(src), intr, fps)
+    return res
+
+
+def _motion_of(src: str | os.PathLike, motion: str | os.PathLike) -> Trajectory:
+    """The motion CSV ``motion``, refused unless it has one row per frame of ``src``."""
+    traj = read_motion_csv(motion)
+    if len(traj) != probe(src).frame_count:
+        n = count_frames(src)
+        if len(traj) != n:
+            raise EgovidError(
+                f"motion {motion} has {len(traj)} frames but {src} has {n}", "estimate the motion of this video again"
+            )
+    return traj

@@ -41,6 +41,60 @@ from _common import ROOT, cache_dir, report
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 CLIPS = ("gopro-hero5-karma.mp4", "handheld-1080p-pan.mp4")
+SHAKE_CLIPS = ("gopro-hero5-karma.mp4", "handheld-1080p-pan.mp4", "gopro-hero6-2s.mp4")
+
+
+def shake_clip(clip: Path, folder: Path) -> dict:
+    """Issue 31's measure on one real clip, all outputs from the same motion: shake.py (jitter x + y,
+    zoom) of egovid's default, egovid with the visible-shake layer, vid.stab (defaults) and, where
+    the file records a gyro, Gyroflow's method on the synced gyro; seconds of each."""
+    from egovid.core.motion import gyro as gyro_mod
+    from egovid.core.rotations import matrix_from_euler
+    from egovid.fpv.stabilize.gyroflow_peer import plan_gyroflow, run_gyroflow
+    from egovid.fpv.stabilize.render import homographies
+    from egovid.fpv.stabilize.visible import visible_path
+    from stabilize_testbed import shake
+
+    info = probe(clip)
+    out: dict = {"input": shake(clip, clip)}
+    t = time.perf_counter()
+    cm = camera_motion(clip, "auto")
+    intr = cm.camera.intrinsics
+    t_motion = time.perf_counter() - t
+    dst = folder / f"{clip.stem}.egovid.mp4"
+    res = stabilize(clip, dst, intrinsics=intr, motion=cm.trajectory, measure=False)
+    out["egovid"] = {**shake(clip, dst), "seconds": round(t_motion + res.seconds["total"], 2)}
+    t = time.perf_counter()
+    fitted, vt = visible_path(res.original, res.plan, intr, info.fps)
+    R_old = matrix_from_euler(*res.original.T)
+    H = homographies(R_old, matrix_from_euler(*fitted.path.T), intr)
+    dst = folder / f"{clip.stem}.egovid-visible.mp4"
+    render_stabilized(clip, dst, H, keep=fitted.keep)
+    sec = time.perf_counter() - t + t_motion + res.seconds["motion"] + res.seconds["plan"]
+    out["egovid-visible"] = {
+        **shake(clip, dst),
+        "cutoff_hz": vt.cutoff_hz,
+        "zoom_mean": round(float(np.mean(1 / fitted.keep)), 3),
+        "zoom_max": round(float(np.max(1 / fitted.keep)), 3),
+        "seconds": round(sec, 2),
+    }
+    dst = folder / f"{clip.stem}.vidstab.mp4"
+    vs = run_vidstab(clip, dst, folder, defaults=True)
+    out["vidstab"] = {**shake(clip, dst), "seconds": round(vs.seconds, 2)}
+    if cm.sync is not None and cm.telemetry.imu is not None:
+        t = time.perf_counter()
+        track = gyro_mod.integrate(cm.telemetry.imu, bias=cm.sync.bias)
+        gt = track.times - cm.sync.offset_s
+        Rg = gyro_mod.frame_rotations(track, cm.sync, gt)
+        plan = plan_gyroflow(gt, Rg, cm.trajectory.times, intr, info.fps, rotation=0)
+        dst = folder / f"{clip.stem}.gyroflow.mp4"
+        run_gyroflow(clip, dst, plan, intr)
+        out["gyroflow"] = {**shake(clip, dst), "seconds": round(time.perf_counter() - t + t_motion, 2)}
+    v = out["vidstab"]["jitter"]
+    for k in ("egovid", "egovid-visible", "gyroflow"):
+        if k in out:
+            out[k]["jitter_over_vidstab"] = round(out[k]["jitter"] / max(v, 1e-9), 3)
+    return out
 
 
 def zoom_only(src: Path, dst: Path, keep: np.ndarray) -> float:
@@ -102,7 +156,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hfov", action="append", default=[], help="CLIP=DEG: field of view override (interim)")
     ap.add_argument("--clip", action="append", help="only these clips (file names in ../shared/data/real)")
+    ap.add_argument("--shake", action="store_true", help="issue 31: shake.py on egovid, +visible, vid.stab, Gyroflow")
     args = ap.parse_args()
+    if args.shake:
+        folder = cache_dir("stabilize_real_shake")
+        for name in args.clip or SHAKE_CLIPS:
+            if (REAL / name).exists():
+                report(f"stabilize_real_shake/{Path(name).stem}", shake_clip(REAL / name, folder))
+        return
     hfovs = {k: float(v) for k, v in (x.split("=") for x in args.hfov)}
     folder = cache_dir("stabilize_real")
     for name in args.clip or CLIPS:

@@ -1,0 +1,95 @@
+"""Below the plan: remove what a viewer sees as shake, as far as the plan's FPMI allows.
+
+The thesis' plan (ch. 9) keeps the motion anchors (their amplitude and timing: the first-person
+motion information, FPMI) and eases the path between them. What a viewer sees as shake is the
+image path's curvature at time scales under about half a second: the independent measure
+(``shake.py``: the frame-to-frame image shift minus its centred 15-frame moving average) counts
+everything above about 1.5 Hz fully, a walking bob as much as hand tremor, and the start and stop
+of a pan by their acceleration. The two pull against each other only where the anchors are fast.
+
+So the path the frame renders is the plan low-passed (zero-phase Butterworth, order 2) at the
+lowest cutoff whose fitted path still keeps ``fpmi_floor`` of the plan's own FPMI (``1 - VE`` of
+its pure FPM, measured by the scores' rule at the model's rate): a plan whose FPMI is a slow look around, a pan
+or a turn is smoothed at 0.5 Hz and loses nothing a viewer would call intended; a plan whose FPMI
+is a running bob keeps the bob (lowering the cutoff would take it away) and only what lies above
+the bob's band goes. The low-passed plan then goes to the path programme
+(:func:`egovid.fpv.stabilize.path.fit_path`), which bends it into the zoom budget, with weights
+(:data:`VISIBLE_WEIGHTS`) that make the budget work: where the target cannot be shown (a fast pan
+at the end of a clip, a plan that strays further than the crop allows), the path's own curvature
+(second and third differences, 10 and 33 times the default weight) costs more than being away
+from the target (a twentieth of the default) or cropping (a fifth), so the path is the smoothest
+one the crop can cover there instead of the crop's edge hugging the recorded motion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.fpv.perception.model import ViewingModel
+from egovid.fpv.stabilize.path import FittedPath, PathWeights, fit_path
+
+#: Cutoffs tried (Hz), lowest first.
+CUTOFFS_HZ = (0.5, 1.0, 2.0, 4.0)
+#: Share of the plan's FPMI the low-passed plan must keep.
+FPMI_FLOOR = 0.9
+#: Path-programme weights below the plan (module docstring).
+VISIBLE_WEIGHTS = PathWeights(plan=0.05, d1=10.0, d2=300.0, d3=1000.0, zoom=0.2)
+
+
+@dataclass
+class VisibleTarget:
+    """The low-passed plan (K, 3) degrees, the cutoff used (Hz; None = the plan unchanged) and
+    the share of the plan's FPMI it keeps."""
+
+    target: np.ndarray
+    cutoff_hz: float | None
+    fpmi_kept: float
+
+
+def low_pass(angles: np.ndarray, fps: float, cutoff_hz: float) -> np.ndarray:
+    """Zero-phase order-2 Butterworth low-pass of the columns of ``angles`` (K, D) at ``fps``."""
+    from scipy.signal import butter, sosfiltfilt
+
+    a = np.asarray(angles, dtype=float)
+    if len(a) < 8 or cutoff_hz >= 0.45 * fps:
+        return a.copy()
+    sos = butter(2, cutoff_hz, fs=fps, output="sos")
+    pad = min(len(a) - 1, int(3 * fps / cutoff_hz))
+    return sosfiltfilt(sos, a, axis=0, padtype="odd", padlen=pad)
+
+
+def visible_path(
+    original: np.ndarray,
+    plan: np.ndarray,
+    intr: Intrinsics,
+    fps: float,
+    *,
+    max_zoom: float = 1.10,
+    fpmi_floor: float = FPMI_FLOOR,
+    model: ViewingModel | None = None,
+    anchor_threshold: float = 0.5,
+    weights: PathWeights | None = None,
+) -> tuple[FittedPath, VisibleTarget]:
+    """The rendered path and zoom below ``plan`` (both (K, 3) degrees per frame at ``fps``, with
+    the recorded ``original``): the plan low-passed at the lowest cutoff of :data:`CUTOFFS_HZ`
+    whose path, bent into ``max_zoom`` by the path programme with :data:`VISIBLE_WEIGHTS`, still
+    keeps ``fpmi_floor`` of the plan's FPMI (the crop may not let the path follow the low-passed
+    plan: a pan at the clip's end, so the check is on the path, not the target); the plan itself
+    with those weights when no cutoff does."""
+    from egovid.fpv.stabilize.measure import motion_scores
+
+    w = weights or VISIBLE_WEIGHTS
+    kw = {"model": model, "anchor_threshold": anchor_threshold}
+    base = 1.0 - motion_scores(plan, fps, intr, **kw).pure_fpm_ve
+    for hz in CUTOFFS_HZ:
+        target = low_pass(plan, fps, hz)
+        fitted = fit_path(original, target, intr, fps, max_zoom=max_zoom, weights=w)
+        kept = (1.0 - motion_scores(fitted.path, fps, intr, **kw).pure_fpm_ve) / base if base > 1e-6 else 1.0
+        if kept >= fpmi_floor:
+            return fitted, VisibleTarget(target, hz, float(kept))
+    fitted = fit_path(original, plan, intr, fps, max_zoom=max_zoom, weights=w)
+    kept = (1.0 - motion_scores(fitted.path, fps, intr, **kw).pure_fpm_ve) / base if base > 1e-6 else 1.0
+    return fitted, VisibleTarget(np.asarray(plan, float).copy(), None, float(kept))

@@ -84,7 +84,7 @@ def archive_720(folder: Path) -> Path:
         shutil.rmtree(root)
     run("dashcam", "init", root)
     for name in ("mon", "tue"):
-        run("dashcam", "ingest", root, folder / f"{name}.mp4")
+        run("dashcam", "ingest", root, folder / f"{name}.mp4", "--codec", "vp9")  # tue: a joint drive
     (folder / "done").write_text("ok")
     return root
 

@@ -158,7 +158,6 @@ def _floats(text: str | None, n: int, name: str) -> tuple[float, ...] | None:
 
 
 def _utc(text: str | None, name: str) -> float | None:
-
     if text is None or text == "":
         return None
     try:
@@ -168,84 +167,72 @@ def _utc(text: str | None, name: str) -> float | None:
     return (t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp()
 
 
-def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
-    """The web app for ``config`` (``ops``: an already open archive). Its state (archive, streams,
-    clips) is closed when the app shuts down."""
-    ops = ops or ArchiveOps(config.archive)
+class _Api:
+    """The JSON API's handlers over one archive's operations, streams and clips (one job: turn a
+    request into a library call and its answer into a response)."""
 
-    streams = StreamService(
-        ops.stream_source,
-        settings=EncodeSettings(crf=config.crf, max_height=config.max_height),
-        cache_bytes=config.cache_mb * 2**20,
-        max_producers=config.producers,
-    )
-    clips = ClipStore()
-    token = config.token or new_token()
-    tiles_origin = None
-    if config.tiles:
+    def __init__(self, config: ServeConfig, ops: ArchiveOps, streams: StreamService, clips: ClipStore, token: str):
+        self.config, self.ops, self.streams, self.clips, self.token = config, ops, streams, clips, token
+        self.reports = [(kind, Path(folder).resolve()) for kind, folder in config.reports]
 
-        u = urlsplit(config.tiles.replace("{s}", "a"))
-        tiles_origin = f"{u.scheme}://{u.netloc}" if u.scheme in ("http", "https") else None
-        if "{s}" in config.tiles:
-            tiles_origin = f"{u.scheme}://*.{u.netloc.split('.', 1)[-1]}"
-    policy = AccessPolicy(config.host, config.port, token, tiles_origin)
-    reports = [(kind, Path(folder).resolve()) for kind, folder in config.reports]
-
+    @staticmethod
     async def call(fn, *args, **kwargs):
         try:
             return await run_in_threadpool(fn, *args, **kwargs)
         except Exception as exc:
             return _error(exc)
 
+    @staticmethod
     def respond(result, status: int = 200) -> Response:
         return result if isinstance(result, Response) else JSONResponse(result, status_code=status)
 
+    @staticmethod
     def drive_id(request: Request) -> int:
         return int(request.path_params["id"])
 
-    async def info(request: Request) -> Response:
+    async def info(self, request: Request) -> Response:
         listed = []
         for kind in ("fpv", "voeval"):
-            for n, (_, folder) in enumerate([r for r in reports if r[0] == kind]):
+            for n, (_, folder) in enumerate([r for r in self.reports if r[0] == kind]):
                 listed.append({"kind": kind, "name": folder.name, "base": f"/reports/{kind}/{n}/",
                                "pages": report_pages(folder)})  # fmt: skip
-        return JSONResponse({"archive": config.archive.resolve().name, "read_only": config.read_only, "token": token,
-                             "tiles": config.tiles, "reports": listed})  # fmt: skip
+        c = self.config
+        return JSONResponse({"archive": c.archive.resolve().name, "read_only": c.read_only, "token": self.token,
+                             "tiles": c.tiles, "reports": listed})  # fmt: skip
 
-    async def drives(request: Request) -> Response:
-        return respond(await call(ops.overview))
+    async def drives(self, request: Request) -> Response:
+        return self.respond(await self.call(self.ops.overview))
 
-    async def track(request: Request) -> Response:
-        return respond(await call(ops.track, drive_id(request)))
+    async def track(self, request: Request) -> Response:
+        return self.respond(await self.call(self.ops.track, self.drive_id(request)))
 
-    async def manifest(request: Request) -> Response:
-        return respond(await call(streams.manifest, drive_id(request)))
+    async def manifest(self, request: Request) -> Response:
+        return self.respond(await self.call(self.streams.manifest, self.drive_id(request)))
 
-    async def chunk(request: Request) -> Response:
+    async def chunk(self, request: Request) -> Response:
         viewer = request.query_params.get("v", "")[:64]
-        got = await call(streams.chunk, drive_id(request), int(request.path_params["k"]), viewer=viewer)
+        k = int(request.path_params["k"])
+        got = await self.call(self.streams.chunk, self.drive_id(request), k, viewer=viewer)
         if isinstance(got, Response):
             return got
-
         return Response(got, media_type="video/mp4", headers={"x-egovid-codec": mime_codec(got),
                                                               "cache-control": "private, max-age=600"})  # fmt: skip
 
-    async def find(request: Request) -> Response:
+    async def find(self, request: Request) -> Response:
         q = request.query_params
 
         def run():
-            near = _floats(q.get("near"), 2, "near")
-            return ops.find(
-                near=near,
+            return self.ops.find(
+                near=_floats(q.get("near"), 2, "near"),
                 radius=float(q.get("radius") or 50.0),
                 bbox=_floats(q.get("bbox"), 4, "bbox"),
                 t_from=_utc(q.get("from"), "from"),
                 t_to=_utc(q.get("to"), "to"),
             )
 
-        return respond(await call(run))
+        return self.respond(await self.call(run))
 
-    async def make_clip(request: Request) -> Response:
+    async def make_clip(self, request: Request) -> Response:
         try:
             body = await _json_body(request)
             did = int(_number(body, "drive", hi=2**62))
@@ -254,21 +241,21 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
             after = _number(body, "after", 10.0, hi=3600)
         except EgovidError as exc:
             return _error(exc)
-        cid, folder = clips.new()
-        got = await call(ops.clip, did, t, before, after, folder / "clip.mp4")
+        cid, folder = self.clips.new()
+        got = await self.call(self.ops.clip, did, t, before, after, folder / "clip.mp4")
         if isinstance(got, Response):
             return got
         links = {"video": f"/api/clips/{cid}/clip.mp4", "gpx": f"/api/clips/{cid}/clip.gpx" if got["gpx"] else None}
         return JSONResponse({**{k: v for k, v in got.items() if k not in ("video", "gpx")}, **links, "id": cid})
 
-    async def clip_file(request: Request) -> Response:
-        path = clips.file(request.path_params["clip"], request.path_params["file"])
+    async def clip_file(self, request: Request) -> Response:
+        path = self.clips.file(request.path_params["clip"], request.path_params["file"])
         if path is None:
             return JSONResponse({"error": "no such clip; make it again"}, status_code=404)
         kind = "video/mp4" if path.suffix == ".mp4" else "application/gpx+xml"
         return FileResponse(path, media_type=kind, filename=f"{request.path_params['clip'][:8]}-{path.name}")
 
-    async def lock(request: Request) -> Response:
+    async def lock(self, request: Request) -> Response:
         try:
             body = await _json_body(request)
         except EgovidError as exc:
@@ -276,11 +263,12 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
         note = body.get("note")
         if note is not None and (not isinstance(note, str) or len(note) > 500):
             return JSONResponse({"error": "note must be text of at most 500 characters"}, status_code=400)
-        return respond(await call(ops.set_lock, drive_id(request), True, note or None))
+        return self.respond(await self.call(self.ops.set_lock, self.drive_id(request), True, note or None))
 
-    async def unlock(request: Request) -> Response:
-        return respond(await call(ops.set_lock, drive_id(request), False, None))
+    async def unlock(self, request: Request) -> Response:
+        return self.respond(await self.call(self.ops.set_lock, self.drive_id(request), False, None))
 
+    @staticmethod
     async def _forget_ids(request: Request) -> list[int]:
         body = await _json_body(request)
         ids = body.get("drives")
@@ -288,57 +276,88 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
             raise EgovidError("drives must be a list of drive ids", 'send {"drives": [ID, ...]}')
         return ids
 
-    async def forget_preview(request: Request) -> Response:
+    async def forget_preview(self, request: Request) -> Response:
         try:
-            ids = await _forget_ids(request)
+            ids = await self._forget_ids(request)
         except EgovidError as exc:
             return _error(exc)
-        return respond(await call(ops.forget, ids, dry_run=True))
+        return self.respond(await self.call(self.ops.forget, ids, dry_run=True))
 
-    async def forget(request: Request) -> Response:
+    async def forget(self, request: Request) -> Response:
         try:
-            ids = await _forget_ids(request)
+            ids = await self._forget_ids(request)
         except EgovidError as exc:
             return _error(exc)
-        got = await call(ops.forget, ids, dry_run=False)
+        got = await self.call(self.ops.forget, ids, dry_run=False)
         if not isinstance(got, Response):
-            streams.invalidate()  # trimmed or deleted segments: every cached chunk is suspect
-        return respond(got)
+            self.streams.invalidate()  # trimmed or deleted segments: every cached chunk is suspect
+        return self.respond(got)
 
-    async def not_found(request: Request, exc: HTTPException) -> Response:
-        return JSONResponse({"error": exc.detail}, status_code=exc.status_code)
-
-
-    data = resources.files("egovid.data")
-    routes = [
-        Route("/", lambda r: FileResponse(str(data / "serve" / "index.html"), headers={"cache-control": "no-store"})),
-        Route("/favicon.ico", lambda r: Response(status_code=204)),
-        Route("/api/info", info),
-        Route("/api/drives", drives),
-        Route("/api/drives/{id:int}/track", track),
-        Route("/api/drives/{id:int}/stream", manifest),
-        Route("/api/drives/{id:int}/chunks/{k:int}.mp4", chunk),
-        Route("/api/find", find),
-        Route("/api/clips", make_clip, methods=["POST"]),
-        Route("/api/clips/{clip}/{file}", clip_file),
-    ]
-    if not config.read_only:
-        routes += [
-            Route("/api/drives/{id:int}/lock", lock, methods=["POST"]),
-            Route("/api/drives/{id:int}/unlock", unlock, methods=["POST"]),
-            Route("/api/forget/preview", forget_preview, methods=["POST"]),
-            Route("/api/forget", forget, methods=["POST"]),
+    def routes(self) -> list:
+        """Every route of the app: the page, the API (the changes only when not read-only), the
+        static files and the report folders."""
+        data = resources.files("egovid.data")
+        index = str(data / "serve" / "index.html")
+        routes = [
+            Route("/", lambda r: FileResponse(index, headers={"cache-control": "no-store"})),
+            Route("/favicon.ico", lambda r: Response(status_code=204)),
+            Route("/api/info", self.info),
+            Route("/api/drives", self.drives),
+            Route("/api/drives/{id:int}/track", self.track),
+            Route("/api/drives/{id:int}/stream", self.manifest),
+            Route("/api/drives/{id:int}/chunks/{k:int}.mp4", self.chunk),
+            Route("/api/find", self.find),
+            Route("/api/clips", self.make_clip, methods=["POST"]),
+            Route("/api/clips/{clip}/{file}", self.clip_file),
         ]
-    routes += [
-        Mount("/static/leaflet", app=StaticFiles(directory=str(data / "leaflet"))),
-        Mount("/static", app=StaticFiles(directory=str(data / "serve"))),
-    ]
-    kinds: dict[str, int] = {}
-    for kind, folder in reports:
-        n = kinds.get(kind, 0)
-        kinds[kind] = n + 1
-        routes.append(Mount(f"/reports/{kind}/{n}", app=StaticFiles(directory=str(folder), html=True)))
+        if not self.config.read_only:
+            routes += [
+                Route("/api/drives/{id:int}/lock", self.lock, methods=["POST"]),
+                Route("/api/drives/{id:int}/unlock", self.unlock, methods=["POST"]),
+                Route("/api/forget/preview", self.forget_preview, methods=["POST"]),
+                Route("/api/forget", self.forget, methods=["POST"]),
+            ]
+        routes += [
+            Mount("/static/leaflet", app=StaticFiles(directory=str(data / "leaflet"))),
+            Mount("/static", app=StaticFiles(directory=str(data / "serve"))),
+        ]
+        kinds: dict[str, int] = {}
+        for kind, folder in self.reports:
+            n = kinds.get(kind, 0)
+            kinds[kind] = n + 1
+            routes.append(Mount(f"/reports/{kind}/{n}", app=StaticFiles(directory=str(folder), html=True)))
+        return routes
 
+
+async def _not_found(request: Request, exc: HTTPException) -> Response:
+    return JSONResponse({"error": exc.detail}, status_code=exc.status_code)
+
+
+def _tiles_origin(tiles: str | None) -> str | None:
+    """The origin the page may load map tiles from (``{s}`` subdomains as a wildcard), for the
+    content security policy; None without tiles."""
+    if not tiles:
+        return None
+    u = urlsplit(tiles.replace("{s}", "a"))
+    if u.scheme not in ("http", "https"):
+        return None
+    return f"{u.scheme}://*.{u.netloc.split('.', 1)[-1]}" if "{s}" in tiles else f"{u.scheme}://{u.netloc}"
+
+
+def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
+    """The web app for ``config`` (``ops``: an already open archive). Its state (archive, streams,
+    clips) is closed when the app shuts down."""
+    ops = ops or ArchiveOps(config.archive)
+    streams = StreamService(
+        ops.stream_source,
+        settings=EncodeSettings(crf=config.crf, max_height=config.max_height),
+        cache_bytes=config.cache_mb * 2**20,
+        max_producers=config.producers,
+    )
+    clips = ClipStore()
+    token = config.token or new_token()
+    policy = AccessPolicy(config.host, config.port, token, _tiles_origin(config.tiles))
+    api = _Api(config, ops, streams, clips, token)
 
     @contextlib.asynccontextmanager
     async def lifespan(app):
@@ -349,7 +368,7 @@ def create_app(config: ServeConfig, ops: ArchiveOps | None = None) -> Starlette:
             clips.close()
             ops.close()
 
-    app = Starlette(routes=routes, exception_handlers={HTTPException: not_found}, lifespan=lifespan)
+    app = Starlette(routes=api.routes(), exception_handlers={HTTPException: _not_found}, lifespan=lifespan)
     app.state.streams, app.state.ops, app.state.clips = streams, ops, clips
     app.add_middleware(AccessMiddleware, policy=policy)
     return app

@@ -27,7 +27,6 @@ a 4xx status for bad input, 500 for a failure, and never stops the server.
 from __future__ import annotations
 
 import contextlib
-import datetime as dt
 import re
 import shutil
 import tempfile
@@ -48,6 +47,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from egovid.core.errors import EgovidError, user_error
+from egovid.core.times import iso_to_utc
 from egovid.serve.access import AccessMiddleware, AccessPolicy, new_token
 from egovid.serve.archive_ops import ArchiveOps, DriveNotFoundError
 from egovid.serve.fragments import EncodeSettings, mime_codec
@@ -158,13 +158,13 @@ def _floats(text: str | None, n: int, name: str) -> tuple[float, ...] | None:
 
 
 def _utc(text: str | None, name: str) -> float | None:
+    """A query's ISO 8601 time (no zone = UTC) → UTC seconds; None when not given."""
     if text is None or text == "":
         return None
     try:
-        t = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+        return iso_to_utc(text)
     except ValueError:
         raise EgovidError(f"{name} {text!r} is not an ISO 8601 time", "write e.g. 2026-05-04T08:00:00Z") from None
-    return (t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp()
 
 
 class _Api:

@@ -71,8 +71,8 @@ def test_a_trimmed_av1_blob_keeps_its_codec_and_pictures():
 
 
 def test_the_registry_names_each_backend_and_refuses_what_it_cannot_do():
-    assert set(registry.BACKENDS) == {"vp9", "av1"}
-    assert registry.BACKENDS["vp9"].joint and not registry.BACKENDS["av1"].joint
+    assert set(registry.BACKENDS) == {"vp9", "av1", "aom"}
+    assert registry.BACKENDS["vp9"].joint and registry.BACKENDS["aom"].joint and not registry.BACKENDS["av1"].joint
     with pytest.raises(EgovidError, match="unknown codec"):
         registry.backend("h266")
     with pytest.raises(EgovidError, match="unknown codec"):

@@ -52,7 +52,7 @@ lint: $(STAMP)
 # subprocess, a server or the encoder while the other computes.
 test: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks experiments
-	$(BIN)/pytest -q -n 2 --dist loadfile
+	$(BIN)/pytest -q -n 2 --dist loadfile --durations=25
 
 bench: $(STAMP)
 	@for b in benchmarks/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

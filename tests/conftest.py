@@ -325,3 +325,25 @@ def pytest_terminal_summary(terminalreporter) -> None:
         for key, value in getattr(report, "user_properties", ()):
             if key == "summary" and report.when == "call":
                 terminalreporter.write_line(str(value))
+
+
+#: How long a test process may take to exit once its session has finished.
+EXIT_GRACE_S = 120.0
+
+
+def pytest_sessionfinish(session, exitstatus) -> None:
+    """A process (the main one or a pytest-xdist worker) still alive ``EXIT_GRACE_S`` seconds after
+    its session finished is waiting on a thread left behind (a server's, a pool's, a client's
+    loop): it says so on stderr and exits with the session's status, instead of holding CI until
+    its time limit with every test already reported."""
+    import threading
+    import time
+
+    def force_exit() -> None:
+        time.sleep(EXIT_GRACE_S)
+        alive = [t.name for t in threading.enumerate() if t is not threading.current_thread()]
+        sys.stderr.write(f"\ntests: still running {EXIT_GRACE_S:.0f} s after the session ended; threads: {alive}\n")
+        sys.stderr.flush()
+        os._exit(int(exitstatus))
+
+    threading.Thread(target=force_exit, name="exit-watchdog", daemon=True).start()

@@ -265,6 +265,106 @@ def _lens_words(text: str) -> set[str]:
     return {w for w in re.split(r"[^0-9a-z.]+", str(text).lower()) if w and w not in ("f", "mm", "lens")}
 
 
+def _usable(group: list[LensProfile], w: int, h: int) -> list[LensProfile]:
+    """Profiles of a landscape ``w`` x ``h`` picture's aspect ratio, without a digital lens or a stretch."""
+    aspect = w / h
+    return [
+        p
+        for p in group
+        if not p.digital_lens
+        and abs(p.stretch - 1.0) < 1e-6
+        and abs((p.width / p.height) / aspect - 1) <= MAX_ASPECT_ERROR
+    ]
+
+
+def _by_lens(
+    usable: list[LensProfile], camera: str, lens: str | None, w: int, focal_px: float | None
+) -> tuple[list[LensProfile], str] | LensLookup:
+    """The profiles of the lens the file names (a GoPro lens-mode code or a lens name), or, when
+    it names none, of the one lens the measured focal length fits; with a note saying which.
+    A :class:`LensLookup` with the reason when no lens can be told."""
+    want = LENS_CLASSES.get(lens.strip().upper()) if lens and len(lens.strip()) == 1 else None
+    if lens and want is None and len(lens.strip()) > 1:
+        words = _lens_words(lens)
+        chosen = [p for p in usable if (pw := _lens_words(p.lens)) and (pw <= words or words <= pw)]
+        return chosen, f"lens {lens}"
+    if want is not None:
+        if want in ("superview", "hyperview"):
+            return LensLookup(None, f"{camera}'s {want} lens stretches the picture non-linearly (no fisheye profile)")
+        return [p for p in usable if p.lens_class == want], f"{want} lens"
+    chosen = [p for p in usable if p.lens_class not in ("anamorphic", "max lens mod")]
+    named = sorted({p.lens_class for p in chosen} - {""})
+    note = "no lens mode in the file"
+    if len(named) > 1 and focal_px:
+        near = sorted(
+            {p.lens_class for p in chosen if p.lens_class and abs(p.fx * w / p.width / focal_px - 1) <= MAX_SPREAD}
+        )
+        if len(near) == 1:
+            chosen = [p for p in chosen if p.lens_class == near[0]]
+            named = near
+            note = f"{near[0]} lens, the one the measured {focal_px:.0f} px focal length fits"
+    if len(named) > 1:
+        return LensLookup(None, f"the file does not say which of {camera}'s lenses ({', '.join(named)}) was used")
+    return chosen, note
+
+
+def _agreeing(
+    chosen: list[LensProfile], w: int, h: int, stabilized: bool | None, fps: float | None, focal_px: float | None
+) -> tuple[list[LensProfile], float]:
+    """The best-ranked profiles (same size or compatible first, then matching stabilisation, the
+    nearest frame rate, official) that the measured focal length fits, with the relative spread
+    of their focal lengths; scattered community profiles keep their middle half."""
+
+    def rank(p: LensProfile) -> tuple:
+        fps_err = abs(math.log(p.fps / fps)) if fps and p.fps and p.fps > 0 else 9.0
+        return (
+            0 if _same_size(p, w, h) else 1,
+            0 if stabilized is None or p.eis is stabilized else 1,
+            round(fps_err, 2),
+            0 if p.official else 1,
+        )
+
+    best = min(rank(p) for p in chosen)
+    tied = [p for p in chosen if rank(p) == best]
+    if focal_px:  # a measured focal length also tells stabilised (cropped) from plain calibrations
+        tied = [p for p in tied if abs(p.fx * w / p.width / focal_px - 1) <= MAX_SPREAD] or tied
+    rel = [p.fx / p.width for p in tied]
+    spread = max(rel) / min(rel) - 1.0
+    if spread > MAX_SPREAD and len(tied) > 2:
+        order = sorted(range(len(tied)), key=lambda k: rel[k])
+        tied = [tied[k] for k in order[len(order) // 4 : len(order) - len(order) // 4]]
+        rel = [p.fx / p.width for p in tied]
+        spread = max(rel) / min(rel) - 1.0
+    return tied, spread
+
+
+def _same_size(p: LensProfile, w: int, h: int) -> bool:
+    return (p.width, p.height) == (w, h) or (w, h) in p.compatible
+
+
+def _match(
+    tied: list[LensProfile], spread: float, width: int, height: int, fps: float | None, lens_note: str
+) -> LensLookup:
+    """The medoid of the agreeing profiles, scaled to the video (portrait: a quarter turn)."""
+    portrait = height > width
+    w, h = (height, width) if portrait else (width, height)
+    rel = [p.fx / p.width for p in tied]
+    medoid = min(range(len(tied)), key=lambda k: (sum(abs(rel[k] - r) for r in rel), tied[k].rms or 9.0))
+    p = tied[medoid]
+    s = w / p.width
+    fx, fy = p.fx * s, p.fy * (h / p.height)
+    cx, cy = (p.cx + 0.5) * s - 0.5, (p.cy + 0.5) * (h / p.height) - 0.5
+    if portrait:  # rotated a quarter turn: the profile's x is the picture's y
+        fx, fy, cx, cy = fy, fx, (h - 1) - cy, cx
+    exact = _same_size(p, w, h)
+    readout = p.readout_ms if exact and p.readout_ms and (not fps or not p.fps or abs(p.fps / fps - 1) < 0.02) else None
+    how = "at this size" if exact else f"scaled {s:.4g}x"
+    reason = f"{p.name} ({how}; {lens_note}; {len(tied)} profile(s) agree within {100 * spread:.1f} %)"
+    return LensLookup(
+        LensMatch(p, width, height, fx, fy, cx, cy, p.distortion, readout, len(tied), spread, reason), reason
+    )
+
+
 def find_profile(
     brand: str | None,
     model: str | None,
@@ -295,98 +395,25 @@ def find_profile(
         group = profiles_of("", f"{brand}{model}")
     if not group:
         return LensLookup(None, f"no lens profile of {camera}")
-    portrait = height > width
-    w, h = (height, width) if portrait else (width, height)  # profiles are landscape
-    aspect = w / h
-    usable = [
-        p
-        for p in group
-        if not p.digital_lens
-        and abs(p.stretch - 1.0) < 1e-6
-        and abs((p.width / p.height) / aspect - 1) <= MAX_ASPECT_ERROR
-    ]
+    w, h = (height, width) if height > width else (width, height)  # profiles are landscape
+    usable = _usable(group, w, h)
     if not usable:
         return LensLookup(None, f"no profile of {camera} at the aspect ratio {w}:{h} without a digital lens")
-    # Lens.
-    want = LENS_CLASSES.get(lens.strip().upper()) if lens and len(lens.strip()) == 1 else None
-    if lens and want is None and len(lens.strip()) > 1:
-        words = _lens_words(lens)
-        chosen = [p for p in usable if (pw := _lens_words(p.lens)) and (pw <= words or words <= pw)]
-        lens_note = f"lens {lens}"
-    elif want is not None:
-        if want in ("superview", "hyperview"):
-            return LensLookup(None, f"{camera}'s {want} lens stretches the picture non-linearly (no fisheye profile)")
-        chosen = [p for p in usable if p.lens_class == want]
-        lens_note = f"{want} lens"
-    else:
-        chosen = [p for p in usable if p.lens_class not in ("anamorphic", "max lens mod")]
-        named = sorted({p.lens_class for p in chosen} - {""})
-        lens_note = "no lens mode in the file"
-        if len(named) > 1 and focal_px:
-            near = sorted(
-                {p.lens_class for p in chosen if p.lens_class and abs(p.fx * w / p.width / focal_px - 1) <= MAX_SPREAD}
-            )
-            if len(near) == 1:
-                chosen = [p for p in chosen if p.lens_class == near[0]]
-                named = near
-                lens_note = f"{near[0]} lens, the one the measured {focal_px:.0f} px focal length fits"
-        if len(named) > 1:
-            return LensLookup(None, f"the file does not say which of {camera}'s lenses ({', '.join(named)}) was used")
+    by_lens = _by_lens(usable, camera, lens, w, focal_px)
+    if isinstance(by_lens, LensLookup):
+        return by_lens
+    chosen, lens_note = by_lens
     if not chosen:
         return LensLookup(None, f"no profile of {camera} with its {lens_note}")
-    # Stabilisation.
     if stabilized is not None:
-        agree = [p for p in chosen if p.eis is stabilized]
-        neutral = [p for p in chosen if p.eis is None]
-        chosen = agree or neutral
+        chosen = [p for p in chosen if p.eis is stabilized] or [p for p in chosen if p.eis is None]
         if not chosen:
             state = "on" if stabilized else "off"
             return LensLookup(None, f"no profile of {camera} ({lens_note}) with electronic stabilisation {state}")
-
-    # Picture: same size (or compatible) first, then the nearest frame rate, official, low error.
-    def exact(p: LensProfile) -> bool:
-        return (p.width, p.height) == (w, h) or (w, h) in p.compatible
-
-    def rank(p: LensProfile) -> tuple:
-        fps_err = abs(math.log(p.fps / fps)) if fps and p.fps and p.fps > 0 else 9.0
-        return (
-            0 if exact(p) else 1,
-            0 if stabilized is None or p.eis is stabilized else 1,
-            round(fps_err, 2),
-            0 if p.official else 1,
-        )
-
-    best = min(rank(p) for p in chosen)
-    tied = [p for p in chosen if rank(p) == best]
-    if focal_px:  # a measured focal length also tells stabilised (cropped) from plain calibrations
-        fits = [p for p in tied if abs(p.fx * w / p.width / focal_px - 1) <= MAX_SPREAD]
-        tied = fits or tied
-    rel = [p.fx / p.width for p in tied]
-    spread = max(rel) / min(rel) - 1.0
-    if spread > MAX_SPREAD and len(tied) > 2:
-        # Community profiles of one mode scatter: keep the middle half before judging.
-        order = sorted(range(len(tied)), key=lambda k: rel[k])
-        mid = order[len(order) // 4 : len(order) - len(order) // 4]
-        tied = [tied[k] for k in mid]
-        rel = [rel[k] for k in mid]
-        spread = max(rel) / min(rel) - 1.0
+    tied, spread = _agreeing(chosen, w, h, stabilized, fps, focal_px)
     if spread > MAX_SPREAD:
         return LensLookup(
             None,
             f"{len(tied)} profiles of {camera} ({lens_note}) disagree on the focal length by {100 * spread:.0f} %",
         )
-    medoid = min(range(len(tied)), key=lambda k: (sum(abs(rel[k] - r) for r in rel), tied[k].rms or 9.0))
-    p = tied[medoid]
-    s = w / p.width
-    fx, fy = p.fx * s, p.fy * (h / p.height)
-    cx, cy = (p.cx + 0.5) * s - 0.5, (p.cy + 0.5) * (h / p.height) - 0.5
-    if portrait:  # rotated a quarter turn: the profile's x is the picture's y
-        fx, fy, cx, cy = fy, fx, (h - 1) - cy, cx
-    readout = (
-        p.readout_ms if exact(p) and p.readout_ms and (not fps or not p.fps or abs(p.fps / fps - 1) < 0.02) else None
-    )
-    how = "at this size" if exact(p) else f"scaled {s:.4g}x"
-    reason = f"{p.name} ({how}; {lens_note}; {len(tied)} profile(s) agree within {100 * spread:.1f} %)"
-    return LensLookup(
-        LensMatch(p, width, height, fx, fy, cx, cy, p.distortion, readout, len(tied), spread, reason), reason
-    )
+    return _match(tied, spread, width, height, fps, lens_note)

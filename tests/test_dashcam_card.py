@@ -9,6 +9,9 @@ import hashlib
 import json
 import shutil
 import sqlite3
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +27,11 @@ DAY = dt.datetime(2026, 6, 1, 9, 0, 0, tzinfo=dt.UTC)
 
 
 def _rows(root: Path) -> dict:
-    db = sqlite3.connect(str(root / "catalogue.sqlite"))
+    return _rows_of(root / "catalogue.sqlite")
+
+
+def _rows_of(file: Path) -> dict:
+    db = sqlite3.connect(str(file))
     try:
         return {t: db.execute(f"SELECT * FROM {t} ORDER BY 1").fetchall() for t in
                 ("drives", "segments", "sequences", "drive_parts", "file_digests")}  # fmt: skip
@@ -135,8 +142,7 @@ def _extract_all(root: Path, names: list[str], out_dir: Path) -> dict[str, list[
 
 
 def _core_rows(root: Path) -> dict:
-    rows = _rows(root)
-    return {t: rows[t] for t in ("drives", "segments", "sequences", "drive_parts", "file_digests")}
+    return _rows(root)
 
 
 @pytest.mark.slow
@@ -218,3 +224,36 @@ def test_check_lists_missing_and_orphan_blobs_on_s3(card, s3_server, tmp_path):
     r = run_cli("dashcam", "check", s3, env=s3_server)
     assert r.returncode == 2, r.stdout + r.stderr
     assert gone.name[:12] in r.stdout + r.stderr and name in r.stdout, r.stdout
+
+
+@pytest.mark.slow
+def test_backups_taken_while_an_ingest_runs_are_consistent(card, tmp_path):
+    """Backups taken over and over while another process ingests a drive: each is the catalogue
+    before that drive's commit or after it, never in between."""
+    root = card["root"]
+    before = _core_rows(root)
+    args = ["dashcam", "ingest", root, card["dir"] / "whole.mp4", "--gps", card["gps"], "--preset", "archive"]
+    proc = subprocess.Popen([sys.executable, "-m", "egovid", *map(str, args)], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    states = []
+    try:
+        deadline = time.monotonic() + 600
+        k = 0
+        while proc.poll() is None:
+            assert time.monotonic() < deadline, "the ingest did not end in 10 minutes"
+            k += 1
+            b = tmp_path / f"b{k}.sqlite"
+            r = run_cli("dashcam", "backup", root, b)
+            assert r.returncode == 0, r.stderr
+            db = sqlite3.connect(str(b))
+            assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+            db.close()
+            states.append(_rows_of(b))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=60)
+    assert proc.returncode == 0
+    after = _core_rows(root)
+    assert after != before and states
+    assert all(s in (before, after) for s in states)

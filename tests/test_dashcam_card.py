@@ -8,6 +8,7 @@ import datetime as dt
 import hashlib
 import json
 import shutil
+import signal
 import sqlite3
 import subprocess
 import sys
@@ -21,7 +22,7 @@ from egovid.core.video import iter_frames
 from egovid.synth.drive import DriveSpec, Light, render_drive
 from test_dashcam_fleet_archive import FPS, H, W, _split_lossless
 
-from conftest import assert_one_error, run_cli
+from conftest import _wait_for, assert_one_error, run_cli
 
 DAY = dt.datetime(2026, 6, 1, 9, 0, 0, tzinfo=dt.UTC)
 
@@ -79,6 +80,33 @@ def test_the_same_card_again_is_a_no_op_that_says_so(card):
     r = run_cli("dashcam", "ingest", root, other / "COPY.MP4", "--gps", card["gps"])
     assert r.returncode == 0 and "1 file(s) already archived" in r.stdout, r.stdout + r.stderr
     assert _rows(root) == before
+
+
+@pytest.mark.slow
+def test_a_kill_mid_append_leaves_the_archive_as_it_was(card, tmp_path):
+    """kill -9 once the append has written a bitstream (before its commit): the catalogue is as it
+    was, check is clean (the leftover blob is a note for gc), and the file is appended later."""
+    root, files = card["root"], card["files"]
+    before = _rows(root)
+    folder = tmp_path / "card2"
+    folder.mkdir()
+    shutil.copy(files[2], folder / files[2].name)
+    blobs = lambda: {p.name for p in (root / "blobs").rglob("*") if p.is_file()}  # noqa: E731
+    had = blobs()
+    args = ["dashcam", "ingest", root, folder, "--gps", card["gps"], "--preset", "archive"]
+    proc = subprocess.Popen([sys.executable, "-m", "egovid", *map(str, args)], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        _wait_for(lambda: bool(blobs() - had) or proc.poll() is not None, "the append's first bitstream", 600)
+        assert proc.poll() is None, f"the append ended (status {proc.returncode}) before it could be killed"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=60)
+    assert _rows(root) == before
+    r = run_cli("dashcam", "check", root)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert run_cli("dashcam", "gc", root).returncode == 0
+    assert blobs() == had
 
 
 @pytest.mark.slow

@@ -152,7 +152,9 @@ def concat_streams(first: bytes | None, second: bytes | None, offset: float) -> 
     None if it had none) and ``second`` (the appended file's own, from :func:`archive_streams`,
     its clock from 0), placed ``offset`` seconds on (where the file's first frame lands on the
     drive's media clock). Packets are copied, never re-encoded: the audio stays one Opus track
-    (the appended part's encoder delay, 312 samples = 6.5 ms, is not cut but shifts it that much),
+    (decoded back to back, the appended part is late by its encoder delay, 312 samples, plus what
+    the drive's trimmed last Opus frame still holds: 21.3 ms measured on the GoPro clip, under the
+    ~45 ms at which late sound is noticed; cutting it would need a re-encode of the join),
     each telemetry track (matched by kind, codec and handler) one track. None when neither has any."""
     if second is None:
         return first

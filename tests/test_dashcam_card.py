@@ -285,3 +285,25 @@ def test_backups_taken_while_an_ingest_runs_are_consistent(card, tmp_path):
     after = _core_rows(root)
     assert after != before and states
     assert all(s in (before, after) for s in states)
+
+
+@pytest.mark.slow
+def test_append_and_skip_on_a_postgresql_catalogue(card, pg_url, tmp_path):
+    """The same sync on a PostgreSQL catalogue (the real server): a card, the same card again,
+    then the loop file that continues its trip."""
+    root, files = tmp_path / "pg", card["files"]
+    assert run_cli("dashcam", "init", root, "--db", pg_url).returncode == 0
+    r = run_cli("dashcam", "ingest", root, card["card1"], "--gps", card["gps"], "--codec", "vp9")
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = run_cli("dashcam", "ingest", root, card["card1"], "--gps", card["gps"])
+    assert r.returncode == 0 and "2 file(s) already archived" in r.stdout, r.stdout + r.stderr
+    later = tmp_path / "card2"
+    later.mkdir()
+    shutil.copy(files[2], later / files[2].name)
+    r = run_cli("dashcam", "ingest", root, later, "--gps", card["gps"], "--codec", "vp9")
+    assert r.returncode == 0 and "appended to drive" in r.stdout, r.stdout + r.stderr
+    r = run_cli("dashcam", "check", root)
+    assert r.returncode == 0, r.stdout + r.stderr
+    out = tmp_path / "trip.mkv"
+    assert run_cli("dashcam", "extract", root, files[0].stem, "-o", out).returncode == 0
+    assert sum(1 for _ in iter_frames(out)) == card["n"]

@@ -84,7 +84,8 @@ def test_the_same_card_again_is_a_no_op_that_says_so(card):
 
 @pytest.mark.slow
 def test_a_kill_mid_append_leaves_the_archive_as_it_was(card, tmp_path):
-    """kill -9 once the append has written a bitstream (before its commit): the catalogue is as it
+    """kill -9 once the append has written a bitstream, before its commit (held back by a write
+    transaction the test keeps open, so the kill cannot come too late): the catalogue is as it
     was, check is clean (the leftover blob is a note for gc), and the file is appended later."""
     root, files = card["root"], card["files"]
     before = _rows(root)
@@ -94,14 +95,19 @@ def test_a_kill_mid_append_leaves_the_archive_as_it_was(card, tmp_path):
     blobs = lambda: {p.name for p in (root / "blobs").rglob("*") if p.is_file()}  # noqa: E731
     had = blobs()
     args = ["dashcam", "ingest", root, folder, "--gps", card["gps"], "--preset", "archive"]
+    hold = sqlite3.connect(str(root / "catalogue.sqlite"), isolation_level=None)
+    hold.execute("BEGIN IMMEDIATE")  # the append's commit waits for this (SQLite's 30 s busy timeout)
     proc = subprocess.Popen([sys.executable, "-m", "egovid", *map(str, args)], stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
     try:
         _wait_for(lambda: bool(blobs() - had) or proc.poll() is not None, "the append's first bitstream", 600)
+        time.sleep(1.0)  # the piece written whole, the commit waiting
         assert proc.poll() is None, f"the append ended (status {proc.returncode}) before it could be killed"
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=60)
+        hold.rollback()
+        hold.close()
     assert _rows(root) == before
     r = run_cli("dashcam", "check", root)
     assert r.returncode == 0, r.stdout + r.stderr

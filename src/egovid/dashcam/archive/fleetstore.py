@@ -408,6 +408,22 @@ class FleetStore:
                 (blob, nbytes, json.dumps(info), drive_id),
             )
 
+    def last_parts(self, t0: float, t1: float) -> list[tuple]:
+        """The last file of every live drive of kind ``drive`` that ends between UTC ``t0`` and
+        ``t1`` (seconds), one query: (drive id, name, frames, parts, fps, width, height, channel,
+        streams blob, the file's start_utc, its frames) each; channel drives left out."""
+        channels = " AND d.id NOT IN (SELECT drive_id FROM drive_channels)" if fleet_version(self.cat) >= 2 else ""
+        rows = self._q(
+            "SELECT d.id, d.name, d.frames, c.n, d.fps, d.width, d.height, m.channel, m.streams_blob, p.start_utc, "
+            "p.frame_end - p.frame_start FROM drives d JOIN drive_meta m ON m.drive_id = d.id "
+            "JOIN (SELECT drive_id, MAX(part) AS last, COUNT(*) AS n FROM drive_parts GROUP BY drive_id) c "
+            "ON c.drive_id = d.id JOIN drive_parts p ON p.drive_id = d.id AND p.part = c.last "
+            "WHERE m.state = 'live' AND m.kind = 'drive' "
+            "AND p.start_utc + (p.frame_end - p.frame_start) / d.fps BETWEEN ? AND ?" + channels,
+            (float(t0), float(t1)),
+        )
+        return [tuple(r) for r in rows]
+
     # -- content identity and channels (fleet tables version 2) ---------------------------------
     def record_file(self, drive_id: int, part: int, sha256: str, size: int, name: str, channel: str) -> None:
         """Remember an ingested file by its content (inside the ingest's transaction)."""

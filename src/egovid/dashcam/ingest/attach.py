@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from egovid.dashcam.archive.fleetstore import FleetStore, KnownFile, hidden_drive_ids
+from egovid.dashcam.archive.fleetstore import FleetStore, KnownFile
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.ingest.identity import FileDigest
 from egovid.dashcam.route.tracks import GpsTrack, _finish
@@ -82,21 +82,9 @@ class Archived:
     def tails(self, t0: float, t1: float) -> dict[Path, tuple[FileInfo, DriveTail]]:
         """The last files of the live drives (kind ``drive``) that end between UTC ``t0`` and
         ``t1`` (seconds), by their planner path (:func:`tail_path`)."""
-        cat = self.archive.catalogue
-        hidden = hidden_drive_ids(cat)
         out: dict[Path, tuple[FileInfo, DriveTail]] = {}
-        for d in cat.drives():
-            if d.id in hidden:
-                continue
-            meta = self.store.meta(d.id)
-            parts = self.store.parts(d.id)
-            if meta.kind != "drive" or not parts:
-                continue
-            last = parts[-1]
-            duration = (last.frame_end - last.frame_start) / d.fps
-            if not t0 <= last.start_utc + duration <= t1:
-                continue
-            path = tail_path(d.name)
-            info = FileInfo(path, last.start_utc, duration, d.width, d.height, d.fps, "drive", meta.channel, 0.0)
-            out[path] = (info, DriveTail(d.id, d.name, d.frames, len(parts), d.fps, meta.streams_blob))
+        for did, name, frames, parts, fps, w, h, channel, blob, start, n in self.store.last_parts(t0, t1):
+            path = tail_path(name)
+            info = FileInfo(path, float(start), int(n) / fps, int(w), int(h), float(fps), "drive", channel, 0.0)
+            out[path] = (info, DriveTail(int(did), name, int(frames), int(parts), float(fps), blob))
         return out

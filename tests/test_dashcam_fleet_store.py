@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from egovid.dashcam.archive.catalogue import catalogue_settings, open_catalogue
-from egovid.dashcam.archive.fleetstore import DriveMeta, DrivePart, FleetStore
+from egovid.dashcam.archive.fleetstore import FLEET_SCHEMA, DriveMeta, DrivePart, FleetStore
 from egovid.dashcam.find import Query, stretches
 
 T0 = 1_777_000_000.0  # 2026-04-24
@@ -100,9 +100,27 @@ def test_archive_made_before_the_fleet_tables_is_migrated(tmp_path):
         did = cat.add_drive("old", "/videos/old.mp4", "old.gpx", T0, 30.0, 64, 64, 90)
     assert cat.get_meta("fleet_schema") is None
     fleet = FleetStore(cat)
-    assert cat.get_meta("fleet_schema") == "1"
+    assert cat.get_meta("fleet_schema") == str(FLEET_SCHEMA)
     assert fleet.meta(did).kind == "drive" and fleet.meta(did).state == "live"
     assert [(p.source, p.frame_end, p.start_utc) for p in fleet.parts(did)] == [("/videos/old.mp4", 90, T0)]
     assert fleet.track(did) is None  # no track was kept then: find and the map skip it
     FleetStore(cat)  # a second open migrates nothing
     assert len(fleet.parts(did)) == 1
+    assert not fleet.has_digests(did)  # known by its name only, as before
+
+
+def test_fleet_tables_of_version_1_get_the_file_digests(tmp_path):
+    cat = open_catalogue(tmp_path, {"backend": "sqlite"}, create=True)
+    FleetStore(cat)
+    with cat.transaction():  # as an egovid of fleet tables version 1 left them
+        cat._q("DROP TABLE file_digests")
+        cat._q("DROP TABLE drive_channels")
+        cat.set_meta("fleet_schema", "1")
+        did = cat.add_drive("old", "/videos/old.mp4", "old.gpx", T0, 30.0, 64, 64, 90)
+    fleet = FleetStore(cat)
+    assert cat.get_meta("fleet_schema") == str(FLEET_SCHEMA) and fleet.known_files("ab" * 32, 5) == []
+    with cat.transaction():
+        fleet.record_file(did, 0, "ab" * 32, 5, "FILE0001.MP4", "front")
+    (k,) = fleet.known_files("ab" * 32, 5)
+    assert (k.name, k.drive_name, k.part) == ("FILE0001.MP4", "old", 0)
+    assert fleet.known_files("ab" * 32, 6) == []  # same digest, other size: another file

@@ -131,3 +131,22 @@ def test_policies_pick_old_unlocked_drives():
             parse_duration(bad)
     with pytest.raises(EgovidError, match="--keep-bytes"):
         parse_size("lots")
+
+
+def test_the_other_cameras_files_find_the_front_file_of_their_moment():
+    from egovid.dashcam.ingest.sources import _slots
+    from egovid.dashcam.route.channels import file_camera
+
+    names = ["2024_0131_235959_0001F.MP4", "2024_0131_235959_0001R.MP4", "20240131_235959_NF.mp4",
+             "20240131_235959_NR.mp4", "2024-01-31_23-59-59-back.mp4", "2024-01-31_23-59-59-front.mp4",
+             "2024-01-31_23-59-59-left_repeater.mp4", "2024_0131_240059_0002R.MP4", "solo.mp4"]  # fmt: skip
+    files = [Path(n) for n in names]
+    got = {a.name: b.name for a, b in _slots(files).items()}
+    assert got == {
+        "2024_0131_235959_0001R.MP4": "2024_0131_235959_0001F.MP4",
+        "20240131_235959_NR.mp4": "20240131_235959_NF.mp4",
+        "2024-01-31_23-59-59-back.mp4": "2024-01-31_23-59-59-front.mp4",
+        "2024-01-31_23-59-59-left_repeater.mp4": "2024-01-31_23-59-59-front.mp4",
+    }  # a rear file without its front one, and a one-camera name, stand alone
+    assert file_camera("20240131_235959_NR.mp4").slot == file_camera("20240131_235959_NF.mp4").slot
+    assert file_camera("solo.mp4").rule is None

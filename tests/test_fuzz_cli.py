@@ -296,6 +296,16 @@ CASES: list[tuple[str, str, str]] = [
     ("dashcam-report-html-is-json", "dashcam report arc --json r.json --html r.json", "also given"),
     ("dashcam-report-colour", "dashcam report arc --colour pink", "pink"),
     ("dashcam-report-html-not-archive", "dashcam report notarc --html r.html", "not an egovid archive"),
+    # dashcam backup / restore
+    ("dashcam-backup-not-archive", "dashcam backup notarc b.sqlite", "not an egovid archive"),
+    ("dashcam-backup-over-a-file", "dashcam backup arc clip.mp4", "exists"),
+    ("dashcam-backup-no-folder", "dashcam backup arc nodir/b.sqlite", "does not exist"),
+    ("dashcam-backup-no-file", "dashcam backup arc", "missing argument"),
+    ("dashcam-restore-missing", "dashcam restore nosuch.sqlite arc", "does not exist"),
+    ("dashcam-restore-video", "dashcam restore clip.mp4 arc", "not a catalogue backup"),
+    ("dashcam-restore-text", "dashcam restore words.csv arc", "not a catalogue backup"),
+    ("dashcam-restore-folder", "dashcam restore folder arc", "is a folder"),
+    ("dashcam-restore-not-archive", "dashcam restore clip.mp4 notarc", "not an egovid archive"),
     # voeval
     ("voeval-run-size", "voeval run --out r1 --size big", "WIDTHxHEIGHT"),
     ("voeval-run-levels", "voeval run --out r1 --levels lossless,crf99", "crf99"),

@@ -215,6 +215,8 @@ def ingest(
         )
     if json_out is not None:
         atomic_write_text(json_out, json.dumps(result.to_dict(), indent=1, default=str))
+    if result.known:
+        console.print(f"{result.known} file(s) already archived (same content), skipped")
     if result.nothing_new:  # the same card again (a sync job): not a failure (the rest is listed above)
         console.print("nothing new: the drives of these videos are already in the archive")
     result.check()
@@ -625,6 +627,32 @@ def unlock_cmd(
 
     found = set_lock(_open(archive), drives, False)
     console.print(f"unlocked {', '.join(d.name for d in found)}")
+
+
+@app.command("backup")
+def backup(
+    archive: Path = typer.Argument(..., help="Archive folder."),
+    file: Path = typer.Argument(..., help="The backup file to write (new; an SQLite database)."),
+) -> None:
+    """Write a consistent copy of the archive's catalogue (SQLite or PostgreSQL) to FILE, also
+    while ingests run. The bitstreams are not in it: copy the blob store as it is."""
+    from egovid.dashcam.backup import backup_catalogue
+
+    rep = backup_catalogue(_open(archive), file)
+    console.print(f"catalogue of {archive} ({rep.drives} drive(s)) written to {rep.file}")
+
+
+@app.command("restore")
+def restore(
+    file: Path = typer.Argument(..., help="A backup file written by `egovid dashcam backup`."),
+    archive: Path = typer.Argument(..., help="An empty archive (made by `egovid dashcam init`, any --db/--blobs)."),
+) -> None:
+    """Load a catalogue backup into an empty archive, in one transaction (an interruption leaves
+    it empty). Copy the bitstreams into its blob store; `egovid dashcam check` says if any is missing."""
+    from egovid.dashcam.backup import restore_catalogue
+
+    rep = restore_catalogue(file, _open(archive))
+    console.print(f"restored {rep.drives} drive(s) from {file} into {archive}")
 
 
 @app.command("check")

@@ -2,7 +2,8 @@
 
 :func:`check_archive` verifies the catalogue (on opening: see
 :mod:`egovid.dashcam.archive.catalogue_file`), every bitstream (present, its SHA-256 matches its
-name), every drive's segments (they tile its frames) and reference chains (no drive depends on a
+name; a blob in an object store is read back whole), the blobs no drive uses (listed by name),
+every drive's segments (they tile its frames) and reference chains (no drive depends on a
 missing drive or, through others, on itself); with ``deep`` it decodes every drive and compares
 the pictures with the encoder's digests. With ``repair`` it restores a damaged or missing SQLite
 catalogue from its backup (or salvages what SQLite can still read), rebuilds the spatial index,
@@ -26,6 +27,7 @@ from egovid.dashcam.archive.store import Archive, open_archive, read_marker
 from egovid.dashcam.extract import checked_frames
 
 Progress = Callable[[str, int, int], None]
+ORPHANS_LISTED = 20  # names of unused bitstreams ``check`` prints (the count is always given)
 
 
 @dataclass
@@ -293,7 +295,9 @@ def _check_leftovers(c: _Contents, report: CheckReport, referenced: set[str], re
     if orphans:
         report.add(
             "note",
-            f"{len(orphans)} bitstream(s) no drive uses ({sum(f.size for f in orphans)} bytes)",
+            f"{len(orphans)} bitstream(s) no drive uses ({sum(f.size for f in orphans)} bytes): "
+            + ", ".join(sorted(f.name for f in orphans)[:ORPHANS_LISTED])
+            + (" …" if len(orphans) > ORPHANS_LISTED else ""),
             "`egovid dashcam gc` frees them",
         )
 

@@ -37,8 +37,6 @@ from dataclasses import dataclass
 import cv2
 import numba
 import numpy as np
-from scipy.ndimage import median_filter
-from scipy.signal import savgol_filter
 
 from egovid.core.motion.features import FeatureExtractor, FrameFeatures
 
@@ -326,6 +324,8 @@ def align_orb(
 def _filter_stretch(x: np.ndarray, window: int, median: int | None, length: int) -> np.ndarray:
     """Median then local-line filter of ``x``, a stretch of ``length`` frames (or a slice of one:
     the filter sizes follow the whole stretch)."""
+    from scipy.ndimage import median_filter  # heavy (3 s to import under load): only where aligning
+
     y = median_filter(x, min(median or window, length), mode="nearest")
     n = min(window, length)
     return _line_filter(y, n - (1 - n % 2))  # an odd window of >= 3
@@ -339,6 +339,8 @@ def _line_filter(y: np.ndarray, wl: int) -> np.ndarray:
     depends only on its own window's values, whatever the slice around it."""
     n, h = len(y), wl // 2
     if n < wl:
+        from scipy.signal import savgol_filter  # heavy (10 s to import under load): only where needed
+
         return savgol_filter(y, wl, 1, mode="interp")
     out = np.empty(n)
     out[h : n - h] = np.convolve(y, np.full(wl, 1.0 / wl), "valid")  # the line at each window's centre

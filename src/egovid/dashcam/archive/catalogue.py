@@ -132,6 +132,10 @@ class Catalogue(ABC):
     ) -> int: ...
 
     @abstractmethod
+    def set_drive_frames(self, drive_id: int, frames: int) -> None:
+        """A drive's frame count after files were appended to it (inside a transaction)."""
+
+    @abstractmethod
     def drives(self) -> list[Drive]: ...
 
     @abstractmethod
@@ -298,6 +302,9 @@ class _SqlCatalogue(Catalogue):
             "VALUES(?,?,?,?,?,?,?,?,?)",
             (name, source, gps_source, created, start_utc, fps, width, height, frames),
         )
+
+    def set_drive_frames(self, drive_id: int, frames: int) -> None:
+        self._q("UPDATE drives SET frames = ? WHERE id = ?", (int(frames), drive_id))
 
     def _drive(self, row) -> Drive:
         return Drive(*row)

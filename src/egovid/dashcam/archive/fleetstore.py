@@ -15,7 +15,16 @@ first time an archive is opened by an egovid that has them, so archives made bef
 * ``track_index``: chunks of each track as boxes in longitude, latitude and time: an SQLite R*Tree;
   in PostgreSQL a GiST index over the box and the time range, or, where the server has PostGIS, the
   chunk's line as a geometry with a GiST index on its geography (so ``--near`` is an ``ST_DWithin``
-  in metres on the server).
+  in metres on the server);
+* ``file_digests`` (version 2): what every ingested file was, by content (SHA-256 and size of its
+  bytes) with its name only as a label, and the drive and part it became (the drive cleared when
+  a forget purges it: the file stays known, so syncing the card again does not bring it back);
+* ``drive_channels`` (version 2): the other cameras of a multi-camera drive: each is a drive row of
+  its own (its segments coded against the same channel of older drives), hidden from the user's
+  lists and tied to the drive it belongs to (its *primary*).
+
+Archives of version 1 are migrated to 2 the first time a writable catalogue is opened; drives
+ingested before have no digests (their files are known by the drive's name, as before).
 """
 
 from __future__ import annotations
@@ -37,8 +46,9 @@ from egovid.dashcam.archive.catalogue import (
     array_from_le,
     le_bytes,
 )
+from egovid.dashcam.route.channels import channel_rank
 
-FLEET_SCHEMA = 1
+FLEET_SCHEMA = 2
 CHUNK = 32  # fixes per spatial-index entry
 
 _TABLES = """
@@ -54,7 +64,20 @@ CREATE TABLE IF NOT EXISTS drive_parts (
 CREATE INDEX IF NOT EXISTS drive_parts_drive ON drive_parts(drive_id);
 CREATE TABLE IF NOT EXISTS drive_tracks (
   drive_id {REF} PRIMARY KEY REFERENCES drives(id), t {BLOB} NOT NULL, lat {BLOB} NOT NULL, lon {BLOB} NOT NULL,
-  source TEXT)
+  source TEXT);
+{V2}
+"""
+# Version 2: content identity of the files, and the channels of multi-camera drives.
+_TABLES_V2 = """
+CREATE TABLE IF NOT EXISTS file_digests (
+  id {ID}, sha256 TEXT NOT NULL, bytes {REF} NOT NULL, name TEXT NOT NULL, drive_id {REF} REFERENCES drives(id),
+  part INTEGER, channel TEXT);
+CREATE INDEX IF NOT EXISTS file_digests_sha ON file_digests(sha256);
+CREATE INDEX IF NOT EXISTS file_digests_drive ON file_digests(drive_id);
+CREATE TABLE IF NOT EXISTS drive_channels (
+  drive_id {REF} PRIMARY KEY REFERENCES drives(id), primary_id {REF} NOT NULL REFERENCES drives(id),
+  channel TEXT NOT NULL);
+CREATE INDEX IF NOT EXISTS drive_channels_primary ON drive_channels(primary_id)
 """
 _SQLITE_INDEX = (
     "CREATE VIRTUAL TABLE IF NOT EXISTS track_index USING rtree(id, min_lon, max_lon, min_lat, max_lat, min_t, max_t, "
@@ -102,11 +125,35 @@ class DrivePart:
     gap_before: float = 0.0
 
 
+@dataclass(frozen=True)
+class KnownFile:
+    """A file the archive has ingested, found by its content: the file's name then (a label), and
+    the drive it became (name and id; None once a forget purged it), its part and camera channel."""
+
+    name: str
+    drive_id: int | None
+    drive_name: str | None
+    part: int | None
+    channel: str | None
+
+
+def fleet_version(cat: Catalogue) -> int:
+    """The version of the fleet tables (0: none yet), read without creating them."""
+    v = cat.get_meta("fleet_schema")
+    return int(v) if v is not None else 0
+
+
 def hidden_drive_ids(cat: Catalogue) -> set[int]:
-    """Drives a forget hid (kept only as references), without creating the fleet tables."""
-    if cat.get_meta("fleet_schema") is None:
+    """Drives the user does not see as drives of their own: those a forget hid (kept only as
+    references) and the other channels of multi-camera drives (shown with their drive). Read
+    only: the fleet tables are not created."""
+    version = fleet_version(cat)
+    if version == 0:
         return set()
-    return {int(r[0]) for r in cat._q("SELECT drive_id FROM drive_meta WHERE state <> 'live'")}
+    hidden = {int(r[0]) for r in cat._q("SELECT drive_id FROM drive_meta WHERE state <> 'live'")}
+    if version >= 2:
+        hidden |= {int(r[0]) for r in cat._q("SELECT drive_id FROM drive_channels")}
+    return hidden
 
 
 def live_drives(cat: Catalogue) -> list[Drive]:
@@ -127,6 +174,13 @@ def live_drive(cat: Catalogue, key: str, where: str | os.PathLike = "the archive
     return d
 
 
+def _read_only(cat: Catalogue) -> bool:
+    """An SQLite catalogue on a disk or file egovid may not write (it is read as it is)."""
+    if isinstance(cat, SqliteCatalogue):
+        return not (os.access(cat.file, os.W_OK) and os.access(cat.file.parent, os.W_OK))
+    return False
+
+
 class FleetStore:
     """The fleet tables of one catalogue (same connection and transactions)."""
 
@@ -143,42 +197,52 @@ class FleetStore:
         return self.cat._q(sql, args)
 
     def _migrate(self, use_postgis: bool) -> None:
-        version = self.cat.get_meta("fleet_schema")
-        if version is not None:
-            if int(version) > FLEET_SCHEMA:
-                raise EgovidError(f"the archive's fleet tables are version {version}", "upgrade egovid")
-            self.postgis = self.cat.get_meta("fleet_postgis") or None
-            return
+        version = fleet_version(self.cat)
+        if version > FLEET_SCHEMA:
+            raise EgovidError(f"the archive's fleet tables are version {version}", "upgrade egovid")
+        self.postgis = self.cat.get_meta("fleet_postgis") or None
+        if version == FLEET_SCHEMA or (version and _read_only(self.cat)):
+            return  # a read-only catalogue of version 1 is read as it is (no digests, no channels)
         with self.cat.transaction():
-            if self.cat.get_meta("fleet_schema") is not None:  # migrated by another process meanwhile
+            version = fleet_version(self.cat)  # another process may have migrated it meanwhile
+            if version == FLEET_SCHEMA:
                 self.postgis = self.cat.get_meta("fleet_postgis") or None
                 return
             types = self.cat._TYPES
-            ddl = _TABLES.format(**types)
-            if self.backend == "sqlite":
-                ddl += ";" + _SQLITE_INDEX
-            else:
-                self.postgis = self._postgis_schema() if use_postgis else None
-                geom = f", geom {self.postgis}.geometry(LineString, 4326)" if self.postgis else ""
-                gidx = (
-                    f";CREATE INDEX IF NOT EXISTS track_index_geo ON track_index USING gist "
-                    f"(({self.postgis}.geography(geom)))"
-                    if self.postgis
-                    else ""
-                )
-                ddl += ";" + _PG_INDEX.format(GEOM=geom, GEOM_INDEX=gidx)
-            for stmt in (x for x in ddl.split(";") if x.strip()):
-                self._q(stmt)
-            # Drives ingested before these tables existed: one part each, no track (find skips them).
-            for d in self.cat.drives():
-                self._q("INSERT INTO drive_meta(drive_id) VALUES(?)", (d.id,))
-                self._q(
-                    "INSERT INTO drive_parts(drive_id, part, source, frame_start, frame_end, start_utc, gap_before) "
-                    "VALUES(?,?,?,?,?,?,?)",
-                    (d.id, 0, d.source or "", 0, d.frames, d.start_utc, 0.0),
-                )
+            v2 = _TABLES_V2.format(**types)
+            if version == 0:
+                self._create_v1(use_postgis, v2)
+            else:  # 1 -> 2
+                for stmt in (x for x in v2.split(";") if x.strip()):
+                    self._q(stmt)
             self.cat.set_meta("fleet_schema", str(FLEET_SCHEMA))
-            self.cat.set_meta("fleet_postgis", self.postgis or "")
+
+    def _create_v1(self, use_postgis: bool, v2: str) -> None:
+        """The fleet tables of a catalogue that has none (inside the migration's transaction)."""
+        ddl = _TABLES.format(**self.cat._TYPES, V2=v2)
+        if self.backend == "sqlite":
+            ddl += ";" + _SQLITE_INDEX
+        else:
+            self.postgis = self._postgis_schema() if use_postgis else None
+            geom = f", geom {self.postgis}.geometry(LineString, 4326)" if self.postgis else ""
+            gidx = (
+                f";CREATE INDEX IF NOT EXISTS track_index_geo ON track_index USING gist "
+                f"(({self.postgis}.geography(geom)))"
+                if self.postgis
+                else ""
+            )
+            ddl += ";" + _PG_INDEX.format(GEOM=geom, GEOM_INDEX=gidx)
+        for stmt in (x for x in ddl.split(";") if x.strip()):
+            self._q(stmt)
+        # Drives ingested before these tables existed: one part each, no track (find skips them).
+        for d in self.cat.drives():
+            self._q("INSERT INTO drive_meta(drive_id) VALUES(?)", (d.id,))
+            self._q(
+                "INSERT INTO drive_parts(drive_id, part, source, frame_start, frame_end, start_utc, gap_before) "
+                "VALUES(?,?,?,?,?,?,?)",
+                (d.id, 0, d.source or "", 0, d.frames, d.start_utc, 0.0),
+            )
+        self.cat.set_meta("fleet_postgis", self.postgis or "")
 
     def _postgis_schema(self) -> str | None:
         """Where the server has PostGIS: make sure the extension is in the database and return the
@@ -310,6 +374,111 @@ class FleetStore:
         out = [p.start_utc + np.arange(p.frame_end - p.frame_start) / fps for p in self.parts(drive_id)]
         return np.concatenate(out) if out else np.zeros(0)
 
+    def append_part(
+        self,
+        drive_id: int,
+        part: DrivePart,
+        track: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+        streams: tuple[str | None, int, dict] | None = None,
+    ) -> None:
+        """Record a file appended to a drive (inside its transaction): the part, its GPS fixes
+        added to the drive's track (and index), and ``streams`` (blob, bytes, info) that now hold
+        the whole drive's audio and telemetry."""
+        self._q(
+            "INSERT INTO drive_parts(drive_id, part, source, frame_start, frame_end, start_utc, gap_before) "
+            "VALUES(?,?,?,?,?,?,?)",
+            (drive_id, part.part, part.source, part.frame_start, part.frame_end, part.start_utc, part.gap_before),
+        )
+        if track is not None and len(track[0]):
+            t, lat, lon = (np.asarray(a, np.float64) for a in track)
+            old = self.track(drive_id)
+            if old is None:
+                self._q(
+                    "INSERT INTO drive_tracks(drive_id, t, lat, lon, source) VALUES(?,?,?,?,?)",
+                    (drive_id, le_bytes(t, "<f8"), le_bytes(lat, "<f8"), le_bytes(lon, "<f8"), ""),
+                )
+            else:
+                keep = t > (old[0][-1] if len(old[0]) else -np.inf)  # the fixes after the track so far
+                t, lat, lon = t[keep], lat[keep], lon[keep]
+                joined = [np.concatenate([a, b]) for a, b in zip(old, (t, lat, lon), strict=True)]
+                self._q(
+                    "UPDATE drive_tracks SET t = ?, lat = ?, lon = ? WHERE drive_id = ?",
+                    (*(le_bytes(a, "<f8") for a in joined), drive_id),
+                )
+                if len(old[0]) and len(t):  # the join between the old fixes and the new ones
+                    t, lat, lon = (np.concatenate([[a[-1]], b]) for a, b in zip(old, (t, lat, lon), strict=True))
+            if len(t):
+                self._index_track(drive_id, t, lat, lon)
+        if streams is not None:
+            blob, nbytes, info = streams
+            self._q(
+                "UPDATE drive_meta SET streams_blob = ?, streams_bytes = ?, streams_info = ? WHERE drive_id = ?",
+                (blob, nbytes, json.dumps(info), drive_id),
+            )
+
+    def last_parts(self, t0: float, t1: float) -> list[tuple]:
+        """The last file of every live drive of kind ``drive`` that ends between UTC ``t0`` and
+        ``t1`` (seconds), one query: (drive id, name, frames, parts, fps, width, height, channel,
+        streams blob, the file's start_utc, its frames) each; channel drives left out."""
+        channels = " AND d.id NOT IN (SELECT drive_id FROM drive_channels)" if fleet_version(self.cat) >= 2 else ""
+        rows = self._q(
+            "SELECT d.id, d.name, d.frames, c.n, d.fps, d.width, d.height, m.channel, m.streams_blob, p.start_utc, "
+            "p.frame_end - p.frame_start FROM drives d JOIN drive_meta m ON m.drive_id = d.id "
+            "JOIN (SELECT drive_id, MAX(part) AS last, COUNT(*) AS n FROM drive_parts GROUP BY drive_id) c "
+            "ON c.drive_id = d.id JOIN drive_parts p ON p.drive_id = d.id AND p.part = c.last "
+            "WHERE m.state = 'live' AND m.kind = 'drive' "
+            "AND p.start_utc + (p.frame_end - p.frame_start) / d.fps BETWEEN ? AND ?" + channels,
+            (float(t0), float(t1)),
+        )
+        return [tuple(r) for r in rows]
+
+    # -- content identity and channels (fleet tables version 2) ---------------------------------
+    def record_file(self, drive_id: int, part: int, sha256: str, size: int, name: str, channel: str) -> None:
+        """Remember an ingested file by its content (inside the ingest's transaction)."""
+        self._q(
+            "INSERT INTO file_digests(sha256, bytes, name, drive_id, part, channel) VALUES(?,?,?,?,?,?)",
+            (sha256, int(size), name, drive_id, part, channel),
+        )
+
+    def known_files(self, sha256: str, size: int) -> list[KnownFile]:
+        """The files ingested before with these bytes (a file copied under another name too)."""
+        if fleet_version(self.cat) < 2:
+            return []
+        rows = self._q(
+            "SELECT f.name, f.drive_id, d.name, f.part, f.channel FROM file_digests f LEFT JOIN drives d "
+            "ON d.id = f.drive_id WHERE f.sha256 = ? AND f.bytes = ? ORDER BY f.id",
+            (sha256, int(size)),
+        )
+        return [KnownFile(r[0], None if r[1] is None else int(r[1]), r[2], r[3], r[4]) for r in rows]
+
+    def has_digests(self, drive_id: int) -> bool:
+        """Whether the drive's files were recorded by content (drives ingested before were not)."""
+        if fleet_version(self.cat) < 2:
+            return False
+        return self._q("SELECT 1 FROM file_digests WHERE drive_id = ? LIMIT 1", (drive_id,)).fetchone() is not None
+
+    def add_channel(self, drive_id: int, primary_id: int, channel: str) -> None:
+        """Make drive ``drive_id`` the ``channel`` camera of drive ``primary_id``."""
+        self._q("INSERT INTO drive_channels(drive_id, primary_id, channel) VALUES(?,?,?)",
+                (drive_id, primary_id, channel))  # fmt: skip
+
+    def channels(self, primary_id: int) -> dict[str, int]:
+        """The channels of a drive: channel name → drive id, its own (primary) channel first, then
+        the others in :data:`~egovid.dashcam.route.channels.CHANNELS` order."""
+        out = {self.meta(primary_id).channel: primary_id}
+        if fleet_version(self.cat) >= 2:
+            rows = self._q("SELECT channel, drive_id FROM drive_channels WHERE primary_id = ?", (primary_id,))
+            for ch, i in sorted(rows, key=lambda r: channel_rank(r[0])):
+                out[ch] = int(i)
+        return out
+
+    def primary_of(self, drive_id: int) -> int:
+        """The drive a channel drive belongs to (the drive itself when it is no other's channel)."""
+        if fleet_version(self.cat) < 2:
+            return drive_id
+        row = self._q("SELECT primary_id FROM drive_channels WHERE drive_id = ?", (drive_id,)).fetchone()
+        return int(row[0]) if row else drive_id
+
     def set_lock(self, drive_id: int, locked: bool, note: str | None = None) -> None:
         self._q("UPDATE drive_meta SET locked = ?, lock_note = ? WHERE drive_id = ?", (int(locked), note, drive_id))
 
@@ -395,6 +564,9 @@ class FleetStore:
                 q("UPDATE drive_meta SET state = 'reference' WHERE drive_id = ?", (i,))
                 q("UPDATE drives SET name = name || ? WHERE id = ?", (f"~forgotten-{i}", i))
         for i in purge:
+            if fleet_version(self.cat) >= 2:  # the files stay known by content; their drive is gone
+                q("UPDATE file_digests SET drive_id = NULL, part = NULL WHERE drive_id = ?", (i,))
+                q("DELETE FROM drive_channels WHERE drive_id = ? OR primary_id = ?", (i, i))
             for table in ("track_index", "drive_tracks", "drive_parts", "drive_meta"):
                 q(f"DELETE FROM {table} WHERE drive_id = ?", (i,))
             q("UPDATE paths SET created_by = NULL WHERE created_by = ?", (i,))

@@ -10,7 +10,9 @@ returns one small MP4 (the archive stores it as a blob next to the drive's bitst
   bytes unchanged, on the same clock. Tracks the MP4 muxer cannot hold (a QuickTime timecode
   track) are listed in :attr:`StreamsInfo.skipped`, not dropped silently.
 
-:func:`copy_streams` puts a stretch of them into an output container (``extract``, ``clip``): the
+:func:`concat_streams` joins two such MP4s on one clock without decoding them (a file appended to
+a drive: its own MP4 placed after the drive's, packets copied). :func:`copy_streams` puts a
+stretch of them into an output container (``extract``, ``clip``): the
 Opus packets as they are, or re-encoded (e.g. to AAC for an MP4 that every phone plays), and the
 telemetry packets unchanged. An MP4 is a standard file, so ExifTool and camera tools read the GPS
 and IMU of the archived telemetry directly.
@@ -143,6 +145,73 @@ def archive_streams(
     if info.audio is None and not info.telemetry:
         return None, info
     return buf.getvalue(), info
+
+
+def concat_streams(first: bytes | None, second: bytes | None, offset: float) -> bytes | None:
+    """The streams MP4 of a drive after a file is appended to it: ``first`` (the drive's so far,
+    None if it had none) and ``second`` (the appended file's own, from :func:`archive_streams`,
+    its clock from 0), placed ``offset`` seconds on (where the file's first frame lands on the
+    drive's media clock). Packets are copied, never re-encoded: the audio stays one Opus track
+    (decoded back to back, the appended part is late by its encoder delay, 312 samples, plus what
+    the drive's trimmed last Opus frame still holds: 21.3 ms measured on the GoPro clip, under the
+    ~45 ms at which late sound is noticed; cutting it would need a re-encode of the join),
+    each telemetry track (matched by kind, codec and handler) one track. None when neither has any."""
+    if second is None:
+        return first
+    if first is None and offset == 0:
+        return second
+    sources = [(x, shift) for x, shift in ((first, 0.0), (second, float(offset))) if x is not None]
+    buf = io.BytesIO()
+    out = av.open(buf, "w", format="mp4")
+    opened = []
+    try:
+        keyed: dict[tuple, av.stream.Stream] = {}
+        plan = []
+        for data, shift in sources:
+            c = av.open(io.BytesIO(data))
+            opened.append(c)
+            seen: dict[tuple, int] = {}
+            for st in c.streams:
+                codec_name = st.codec_context.name if st.codec_context is not None else getattr(st, "name", "")
+                k = (st.type, codec_name, st.metadata.get("handler_name", "").strip())
+                key = (*k, seen.get(k, 0))
+                seen[k] = seen.get(k, 0) + 1
+                if key not in keyed:
+                    keyed[key] = out.add_stream_from_template(st)
+                plan.append((c, st, keyed[key], shift))
+        ends: dict[int, float] = {}  # output stream index -> end of its last packet (seconds)
+        for c, st, dst, shift in plan:
+            c.seek(0)
+            tb = st.time_base
+            base = round(Fraction(shift) / tb)
+            extra = None
+            for pkt in c.demux(st):
+                if pkt.size == 0 or pkt.pts is None:
+                    continue
+                pts = pkt.pts + base
+                if extra is None:  # the first packet: after what the stream holds already (which
+                    # ends at ``shift``: a last packet's nominal duration may reach past it)
+                    if dst.index in ends:
+                        ends[dst.index] = min(ends[dst.index], float(shift))
+                        extra = max(0, -(-(Fraction(ends[dst.index]) - pts * tb) // tb))
+                    else:
+                        extra = 0
+                pts += extra
+                if dst.index in ends and pts * tb < ends[dst.index] - Fraction(1, 10**6):
+                    continue
+                dur = pkt.duration or 0
+                pkt.pts = pkt.dts = pts
+                pkt.stream = dst
+                out.mux(pkt)
+                ends[dst.index] = float((pts + max(dur, 1)) * tb)
+        out.close()
+    except BaseException:
+        out.close()
+        raise
+    finally:
+        for c in opened:
+            c.close()
+    return buf.getvalue()
 
 
 def _silence_to(target: int, written: int, stream, out) -> int:

@@ -6,7 +6,10 @@ GPS, clock, kind; trips of loop-recording files) and turns every trip into a
 (decoded back to back as one drive), its GPS track (the files' own fixes joined, or the shared
 log), its UTC start, and a :class:`FleetRecord` that the ingest's commit writes in the same
 transaction (kind, camera, lock, clock, the files and their gaps, the GPS track for ``find`` and
-the map, colour tags, the audio/telemetry blob). The audio and telemetry are archived
+the map, colour tags, the audio/telemetry blob, the files' content digests). A trip that continues
+an archived drive (its first part is that drive's last file: :mod:`egovid.dashcam.ingest.attach`)
+becomes one :class:`AppendRecord` per new file instead, each ingested and committed on its own
+(one catalogue transaction per file) onto the end of that drive. The audio and telemetry are archived
 (:mod:`egovid.dashcam.codec.streams`) into the blob store before the ingest, like its bitstreams: a
 failed ingest leaves at most an unreferenced blob for ``gc``.
 """
@@ -23,7 +26,8 @@ from egovid.core.errors import EgovidError
 from egovid.dashcam.archive.catalogue import Catalogue
 from egovid.dashcam.archive.fleetstore import DriveMeta, DrivePart, FleetStore
 from egovid.dashcam.archive.store import Archive
-from egovid.dashcam.codec.streams import archive_streams
+from egovid.dashcam.codec.streams import archive_streams, concat_streams
+from egovid.dashcam.ingest.attach import DriveTail
 from egovid.dashcam.ingest.records import DriveInput, VideoProbe
 from egovid.dashcam.ingest.sources import FileSource, IngestPlan
 from egovid.dashcam.route.tracks import GpsTrack, finish_track
@@ -41,10 +45,52 @@ class FleetRecord:
     parts: list[DrivePart]
     track: tuple[np.ndarray, np.ndarray, np.ndarray]
     track_source: str = ""
+    files: list[FileRow] = field(default_factory=list)
+    unique: bool = True  # False: the user named the drive, a second copy of known files is wanted
 
     def commit(self, cat: Catalogue, drive_id: int) -> None:
         self.meta.drive_id = drive_id
-        FleetStore(cat).add_drive(self.meta, self.parts, self.track, self.track_source)
+        store = FleetStore(cat)
+        store.add_drive(self.meta, self.parts, self.track, self.track_source)
+        _record_files(store, drive_id, self.files, self.unique)
+
+
+@dataclass(frozen=True)
+class FileRow:
+    """A file of a drive by content: its part, SHA-256 and bytes, name (a label) and camera."""
+
+    part: int
+    sha256: str
+    size: int
+    name: str
+    channel: str
+
+
+def _record_files(store: FleetStore, drive_id: int, files: list[FileRow], unique: bool = True) -> None:
+    """The files' digests, inside the commit's transaction; a file another ingest committed
+    meanwhile (the same card synced twice at once) makes the commit fail, nothing written
+    (``unique`` False: a copy the user asked for)."""
+    for f in files:
+        if unique and any(k.drive_id is not None for k in store.known_files(f.sha256, f.size)):
+            raise EgovidError(f"{f.name} is {ALREADY_IN} (another ingest added it meanwhile)", "nothing to do")
+        store.record_file(drive_id, f.part, f.sha256, f.size, f.name, f.channel)
+
+
+@dataclass
+class AppendRecord:
+    """The fleet rows of one file appended to an archived drive, written by that file's commit:
+    its part, its GPS fixes (t, lat, lon), the drive's audio/telemetry blob now (blob, bytes,
+    info; None: unchanged) and its digest."""
+
+    part: DrivePart
+    track: tuple[np.ndarray, np.ndarray, np.ndarray]
+    streams: tuple[str | None, int, dict] | None
+    files: list[FileRow] = field(default_factory=list)
+
+    def commit(self, cat: Catalogue, drive_id: int) -> None:
+        store = FleetStore(cat)
+        store.append_part(drive_id, self.part, self.track, self.streams)
+        _record_files(store, drive_id, self.files)
 
 
 @dataclass
@@ -56,11 +102,15 @@ class PreparedDrive:
     sources: list[FileSource]
     start_utc: float
     track: GpsTrack
-    record: FleetRecord
+    record: FleetRecord | AppendRecord
     notes: list[str] = field(default_factory=list)
+    append: DriveTail | None = None  # the archived drive this file is appended to
+    append_at: int = 0  # its first frame's index in that drive
 
     def describe(self) -> str:
         """What the console says about the drive besides the ingest's figures."""
+        if self.append is not None:
+            return f" appended to drive {self.name!r} at frame {self.append_at} ({self.sources[0].path.name}),"
         kind = (
             "" if self.trip.kind == "drive" else f" {self.trip.kind}{' (locked)' if self.record.meta.locked else ''},"
         )
@@ -70,6 +120,10 @@ class PreparedDrive:
 
     def summary(self) -> dict:
         """The fleet side of the drive's JSON report."""
+        if self.append is not None:
+            return {"kind": "drive", "appended_to": self.name, "at_frame": self.append_at,
+                    "files": [str(s.path.resolve()) for s in self.sources], "gaps_s": [self.trip.parts[0].gap_before],
+                    "notes": self.notes}  # fmt: skip
         m = self.record.meta
         return {"kind": self.trip.kind, "camera": m.channel, "files": [str(s.path.resolve()) for s in self.sources],
                 "gaps_s": self.trip.gaps, "clock": m.clock, "locked": m.locked, "streams": m.streams_info,
@@ -102,26 +156,81 @@ def prepare(
     An archive made without the fleet tables (``Archive.create`` without ``setup``) gets them here,
     before any drive is committed: made inside a commit, they would list the drive being added
     as an older one."""
-    FleetStore(archive.catalogue)
+    store = FleetStore(archive.catalogue)
     taken = {d.name for d in archive.catalogue.drives()}
     if name is not None and len(plan.trips.trips) > 1:
         raise EgovidError(f"--name {name!r} names one drive, but the inputs make {len(plan.trips.trips)}",
                           "leave --name out: each drive is named after its first file")  # fmt: skip
     out = []
-    single = len(plan.trips.trips) == 1 and not plan.skipped
     for trip in plan.trips.trips:
+        tail = plan.tails.get(trip.parts[0].file.path)
+        if tail is not None:
+            if name is not None:
+                raise EgovidError(f"--name {name!r}: the files continue drive {tail.name!r}", "leave --name out")
+            out += _prepare_append(archive, tail, trip, [plan.sources[p.file.path] for p in trip.parts[1:]])
+            continue
+        srcs = [plan.sources[p.file.path] for p in trip.parts]
         nm = name or trip.parts[0].file.path.stem
         if nm in taken:
-            if single:
+            other = archive.catalogue.drive(nm)
+            if name is not None or srcs[0].digest is None:
                 raise EgovidError(f"a drive named {nm!r} is already in the archive", "pass --name to choose another")
-            plan.skipped.append((trip.parts[0].file.path, f"{ALREADY_IN} as drive {nm!r}"))
-            continue
+            if other is not None and not store.has_digests(other.id):
+                # a drive ingested before files were known by content: its name is all we know
+                plan.skipped.append((trip.parts[0].file.path, f"{ALREADY_IN} as drive {nm!r}"))
+                continue
+            nm = f"{nm}-{srcs[0].digest.short[:8]}"  # another file of the same name (another card)
+            if nm in taken:
+                raise EgovidError(f"a drive named {nm!r} is already in the archive", "pass --name to choose another")
         taken.add(nm)
-        out.append(_prepare_trip(archive, nm, trip, [plan.sources[p.file.path] for p in trip.parts], lock_events))
+        out.append(_prepare_trip(archive, nm, trip, srcs, lock_events, unique=name is None))
     return out
 
 
-def _prepare_trip(archive: Archive, name: str, trip: Trip, srcs: list[FileSource], lock_events: bool) -> PreparedDrive:
+def _file_rows(srcs: list[FileSource], first_part: int = 0) -> list[FileRow]:
+    return [FileRow(first_part + i, s.digest.sha256, s.digest.size, s.path.name, s.channel)
+            for i, s in enumerate(srcs) if s.digest is not None]  # fmt: skip
+
+
+def _fixes(srcs: list[FileSource], start: float, end: float) -> tuple[GpsTrack, tuple]:
+    """The files' joined track and its fixes over [start, end] UTC seconds (±5 s)."""
+    track = _joined_track(srcs)
+    inside = (track.t >= start - 5) & (track.t <= end + 5)
+    return track, (track.t[inside], track.lat[inside], track.lon[inside])
+
+
+def _prepare_append(archive: Archive, tail: DriveTail, trip: Trip, srcs: list[FileSource]) -> list[PreparedDrive]:
+    """New loop files of an archived drive, each made an append of its own (in order): its part
+    (frames after the drive's, or the previous file's), its fixes, and the drive's audio/telemetry
+    blob with the file's joined on (stored now; the commit points the drive at it)."""
+    out = []
+    at, part_no = tail.frames, tail.parts
+    streams = archive.blobs.get(tail.streams_blob) if tail.streams_blob else None
+    info = FleetStore(archive.catalogue).meta(tail.drive_id).streams_info
+    for p, s in zip(trip.parts[1:], srcs, strict=True):
+        n = len(s.times)
+        if s.info.fps != tail.fps and abs(s.info.fps - tail.fps) > 0.01 * tail.fps:  # plan_trips checked it
+            raise EgovidError(f"{s.path.name} does not continue drive {tail.name!r}", "ingest it with --no-join")
+        part = DrivePart(part_no, str(s.path.resolve()), at, at + n, float(p.start_utc), float(p.gap_before))
+        own, own_info = archive_streams([(s.path, 0.0, n / tail.fps)])
+        new = None
+        if own is not None:
+            streams = concat_streams(streams, own, at / tail.fps)
+            info = info if info.get("audio") or info.get("telemetry") else own_info.to_dict()
+            new = (archive.blobs.put(streams), len(streams), info)
+        track, fixes = _fixes([s], float(p.start_utc), float(p.start_utc) + s.duration)
+        rec = AppendRecord(part, fixes, new, _file_rows([s], part_no))
+        notes = list(s.clock.notes) + [f"not archived: {x}" for x in own_info.skipped]
+        one = Trip("drive", [p])
+        out.append(PreparedDrive(tail.name, one, [s], float(p.start_utc), track, rec, notes, tail, at))
+        at += n
+        part_no += 1
+    return out
+
+
+def _prepare_trip(
+    archive: Archive, name: str, trip: Trip, srcs: list[FileSource], lock_events: bool, *, unique: bool = True
+) -> PreparedDrive:
     """One trip made a drive: its files' frame ranges, its audio/telemetry blob (stored now), its
     GPS track and its fleet rows."""
     start = float(trip.parts[0].start_utc)
@@ -135,9 +244,7 @@ def _prepare_trip(archive: Archive, name: str, trip: Trip, srcs: list[FileSource
         f += n
     blob, info = archive_streams(media)
     sha = archive.blobs.put(blob) if blob is not None else None
-    track = _joined_track(srcs)
-    end = float(trip.parts[-1].start_utc + srcs[-1].duration)
-    inside = (track.t >= start - 5) & (track.t <= end + 5)
+    track, fixes = _fixes(srcs, start, float(trip.parts[-1].start_utc + srcs[-1].duration))
     locked = lock_events and trip.kind == "event"
     meta = DriveMeta(
         0,
@@ -153,7 +260,7 @@ def _prepare_trip(archive: Archive, name: str, trip: Trip, srcs: list[FileSource
         streams_bytes=len(blob) if blob is not None else 0,
         streams_info=info.to_dict(),
     )  # fmt: skip
-    rec = FleetRecord(meta, parts, (track.t[inside], track.lat[inside], track.lon[inside]), track.source)
+    rec = FleetRecord(meta, parts, fixes, track.source, _file_rows(srcs), unique)
     notes = list(meta.clock["notes"]) + [f"not archived: {x}" for x in info.skipped]
     return PreparedDrive(name, trip, srcs, start, track, rec, notes)
 
@@ -174,6 +281,7 @@ def drive_input(p: PreparedDrive) -> DriveInput:
         gps_label=p.sources[0].gps_source,
         extra=p.record,
         probe=drive_probe(p),
+        append_at=p.append_at if p.append is not None else None,
     )
 
 

@@ -27,7 +27,9 @@ class DriveInput:
     loop-recording files, route/trips.py) lists them in ``parts``, in order, with the UTC start of
     each in ``part_starts``: they are decoded back to back as one video. ``probe``: the drive's
     stage *probe* already made (by whoever examined its files: the fleet's
-    :func:`~egovid.dashcam.ingest.fleet.drive_input`), so that the files are not demuxed again."""
+    :func:`~egovid.dashcam.ingest.fleet.drive_input`), so that the files are not demuxed again.
+    ``append_at``: the video continues the archived drive ``name``, whose frames so far it
+    expects (its frames are appended after them; a commit that finds another count fails)."""
 
     video: Path
     gps: Path | None = None
@@ -41,6 +43,7 @@ class DriveInput:
     parts: tuple[Path, ...] = ()
     part_starts: tuple[float, ...] = ()
     probe: VideoProbe | None = None
+    append_at: int | None = None
 
     @property
     def files(self) -> tuple[Path, ...]:

@@ -27,7 +27,16 @@ from egovid.dashcam.ingest.frames import decode_once
 from egovid.dashcam.ingest.options import IngestOptions
 from egovid.dashcam.ingest.piece import encode_piece
 from egovid.dashcam.ingest.records import DriveInput, DriveTrack, IngestReport
-from egovid.dashcam.ingest.stages import NEAR, commit, paths_along, probe_stage, split_stage, track_stage, track_xy
+from egovid.dashcam.ingest.stages import (
+    NEAR,
+    commit,
+    paths_along,
+    probe_stage,
+    split_stage,
+    track_stage,
+    track_xy,
+    without_drive,
+)
 
 Progress = Callable[[str, int, int], None]
 
@@ -64,7 +73,7 @@ def ingest_drive(
     t_start = time.perf_counter()
     vp = probe_stage(inp)
     track = track_stage(inp, vp)
-    if archive.catalogue.drive(inp.drive_name) is not None:
+    if inp.append_at is None and archive.catalogue.drive(inp.drive_name) is not None:
         raise EgovidError(
             f"a drive named {inp.drive_name!r} is already in the archive", "pass --name to choose another"
         )
@@ -75,6 +84,8 @@ def ingest_drive(
         t0 = time.perf_counter()
         origin, new_origin = lock_areas(archive, session, track)
         plan = split_stage(archive.catalogue, track, origin, new_origin, size)
+        if inp.append_at is not None:  # never coded against the drive it continues
+            plan = without_drive(plan, archive.catalogue.drive(inp.drive_name))
         clock["split"] = time.perf_counter() - t0
         frames = decode_once(inp.files, *size, clock)
         refs = SegmentSnapshot(archive.blobs, plan.references)

@@ -11,10 +11,17 @@ For every file :func:`examine` finds:
 * its clock (:mod:`egovid.dashcam.route.clock`): GPS time, else the camera clock checked against the log;
 * its kind (drive, event, parking) and camera (front, rear, …) from its folder and name.
 
-:func:`plan_ingest` then groups the files into trips (:mod:`egovid.dashcam.route.trips`); files that
-cannot be used are listed with the reason. Nothing is decoded here but the first frame of each file
-(``probe``) and its packet times (core.video.frame_times); both travel with the drive to the
-stages (:func:`~egovid.dashcam.ingest.fleet.drive_probe`), so each file is demuxed once per ingest.
+:func:`plan_ingest` first takes each file's content digest (:mod:`egovid.dashcam.ingest.identity`)
+and leaves out, unexamined, the files the archive holds already (a card synced again costs the
+reading of its bytes, nothing more). A file of another camera of a multi-camera dashcam
+(:mod:`egovid.dashcam.route.channels`: the rear file of the same moment as a front file) is a
+*companion*: it takes the clock and GPS of the primary camera's file of its moment (in this
+ingest, or archived before), so the channels of a drive are in step; it is examined on its own
+only when no such file exists. Then the files are grouped into trips
+(:mod:`egovid.dashcam.route.trips`); files that cannot be used are listed with the reason.
+Nothing is decoded here but the first frame of each file (``probe``) and its packet times
+(core.video.frame_times); both travel with the drive to the stages
+(:func:`~egovid.dashcam.ingest.fleet.drive_probe`), so each file is demuxed once per ingest.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -31,12 +39,15 @@ from egovid.core.camera.tesla import read_tesla_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.times import creation_time_utc
 from egovid.core.video import VideoInfo, frame_times, probe
+from egovid.dashcam.archive.fleetstore import KnownFile
+from egovid.dashcam.ingest.identity import FileDigest, file_digest
 from egovid.dashcam.ingest.stages import check_frame_size
 from egovid.dashcam.route.camera_gps import tesla_rows
+from egovid.dashcam.route.channels import channel_rank, file_camera
 from egovid.dashcam.route.clock import VideoClock, name_time, resolve_clock
 from egovid.dashcam.route.embedded import EmbeddedGps, from_rows, read_embedded_gps
 from egovid.dashcam.route.tracks import GPS_EXTENSIONS, GpsTrack, gps_beside, read_track
-from egovid.dashcam.route.trips import FileInfo, TripPlan, expand_inputs, file_channel, file_kind, plan_trips
+from egovid.dashcam.route.trips import FileInfo, Trip, TripPlan, expand_inputs, file_channel, file_kind, plan_trips
 
 
 @dataclass
@@ -64,6 +75,7 @@ class FileSource:
     kind: str
     channel: str
     embedded: EmbeddedGps | None = None
+    digest: FileDigest | None = None
 
     @property
     def duration(self) -> float:
@@ -194,16 +206,73 @@ def _tesla_gps(path: Path, info: VideoInfo, clock: ClockOptions) -> EmbeddedGps 
     return from_rows(tesla_rows(tel, start))
 
 
+class ArchivedFiles(Protocol):
+    """What the examination asks the archive (:class:`~egovid.dashcam.ingest.attach.Archived`):
+    whether it holds a file already (by content), for such a file its UTC start and its drive's
+    GPS track (a companion file recorded with it takes both), and the last files of archived
+    drives that end between two UTC times (new loop files may continue them)."""
+
+    def known(self, digest: FileDigest) -> KnownFile | None: ...
+
+    def clock_of(self, known: KnownFile) -> tuple[float, GpsTrack] | None: ...
+
+    def tails(self, t0: float, t1: float) -> dict[Path, tuple[FileInfo, object]]: ...
+
+
+def already_in(known: KnownFile) -> str:
+    """Why a file the archive holds is left out (:data:`~egovid.dashcam.ingest.fleet.ALREADY_IN` …)."""
+    where = f"drive {known.drive_name!r}" if known.drive_name else "a drive forgotten since"
+    same = f", as {known.name}" if known.name else ""
+    return f"already in the archive ({where}{same}; same content)"
+
+
+def examine_companion(
+    video: str | os.PathLike, start_utc: float, track: GpsTrack, source: str, label: str
+) -> FileSource:
+    """Look at a file of another camera recorded with a primary camera's file: its video and frame
+    times, with the primary's clock (``start_utc``, UTC seconds; ``source``: how the primary's was
+    set) and GPS ``track`` (``label``: the primary's file, for the catalogue)."""
+    path = Path(video)
+    info = probe(path)
+    times = frame_times(path)
+    check_frame_size(path, info)
+    clock = VideoClock(float(start_utc), f"{source}, recorded with {label}")
+    return FileSource(path, info, times, track, f"with {label}", clock, file_kind(path), file_camera(path).channel)
+
+
 @dataclass
 class IngestPlan:
-    """The drives to ingest (trips of examined files), and the files left out with the reason."""
+    """The drives to ingest (trips of examined files), the files left out with the reason, the
+    files the archive holds already (by content: path -> what it is there), and the archived
+    drives new files continue: a trip whose first part is such a drive's last file (its path a
+    key of ``tails``, :func:`~egovid.dashcam.ingest.attach.tail_path`) is appended to it."""
 
     trips: TripPlan
     sources: dict[Path, FileSource] = field(default_factory=dict)
+    known: dict[Path, KnownFile] = field(default_factory=dict)
+    tails: dict[Path, object] = field(default_factory=dict)
 
     @property
     def skipped(self) -> list[tuple[Path, str]]:
         return self.trips.skipped
+
+
+def _slots(files: list[Path]) -> dict[Path, Path]:
+    """Companion file -> the primary camera's file of its moment (same slot and kind, the best
+    channel, :func:`~egovid.dashcam.route.channels.channel_rank`), among ``files``."""
+    groups: dict[tuple[str, str], list[Path]] = {}
+    for f in files:
+        cam = file_camera(f)
+        if cam.rule is not None:
+            groups.setdefault((cam.slot, file_kind(f)), []).append(f)
+    out: dict[Path, Path] = {}
+    for members in groups.values():
+        ranked = sorted(members, key=lambda f: (channel_rank(file_camera(f).channel), f.name.lower()))
+        head = ranked[0]
+        for f in ranked[1:]:
+            if file_camera(f).channel != file_camera(head).channel:
+                out[f] = head
+    return out
 
 
 def plan_ingest(
@@ -214,13 +283,17 @@ def plan_ingest(
     join: bool = True,
     max_gap: float = 10.0,
     on_file: Callable[[int, int], None] | None = None,
+    archived: ArchivedFiles | None = None,
 ) -> IngestPlan:
     """Examine the inputs (files, folders searched recursively) and group them into drives.
-    ``gps``: one log for all of them (a file, or the track already read).
+    ``gps``: one log for all of them (a file, or the track already read); ``archived``: the
+    archive's answers (files it holds already are left out unexamined, and companions of those
+    take their clock).
 
     With one input file, any problem with it is an error (one line, exit status 2); with several,
     a file that cannot be used is skipped and listed with the reason, and it is an error only when
-    none can be used. ``--start`` needs exactly one file."""
+    none can be used (files the archive holds already are no error: the plan is then empty).
+    ``--start`` needs exactly one file."""
     clock = clock or ClockOptions()
     files = expand_inputs(inputs)
     if not files:
@@ -234,20 +307,79 @@ def plan_ingest(
     single = len(files) == 1 and not Path(inputs[0]).is_dir()
     sources: dict[Path, FileSource] = {}
     skipped: list[tuple[Path, str]] = []
-    for k, f in enumerate(files):
+    known: dict[Path, KnownFile] = {}
+    digests: dict[Path, FileDigest] = {}
+    for f in files:
+        if archived is None:
+            continue
+        digests[f] = file_digest(f)
+        hit = archived.known(digests[f])
+        if hit is not None:
+            if single:  # one file named: its problems are still errors (checked before "nothing to do")
+                examine(f, log, clock, batch=False)
+            known[f] = hit
+            skipped.append((f, already_in(hit)))
+    todo = [f for f in files if f not in known]
+    primary_of = _slots(files)
+    # primaries first: their companions take their clock
+    order = sorted(todo, key=lambda f: f in primary_of)
+    for k, f in enumerate(order):
         try:
-            sources[f] = examine(f, log, clock, batch=not single)
+            src = _companion(f, primary_of.get(f), sources, known, archived)
+            sources[f] = src if src is not None else examine(f, log, clock, batch=not single)
+            sources[f].digest = digests.get(f)
         except EgovidError as e:
             if single:
                 raise
             skipped.append((f, e.one_line()))
         if on_file:
-            on_file(k + 1, len(files))
-    if not sources:
+            on_file(k + 1, len(todo))
+    if not sources and not known:
         first = skipped[0][1] if skipped else "nothing to ingest"
         raise EgovidError(
             f"none of the {len(files)} videos can be ingested (the first: {first})",
             "ingest the files one by one to see each reason; give GPS logs with --gps FILE where the videos have none",
         )
-    trips = plan_trips([s.file_info() for s in sources.values()], skipped=skipped, max_gap=max_gap, join=join)
-    return IngestPlan(trips, sources)
+    infos = [s.file_info() for s in sources.values()]
+    tails: dict[Path, tuple[FileInfo, object]] = {}
+    timed = [i for i in infos if i.start_utc is not None]
+    if archived is not None and join and timed:
+        t0 = min(i.start_utc for i in timed) - max_gap - 1.0
+        tails = archived.tails(t0, max(i.start_utc + i.duration for i in timed))
+    trips = plan_trips([*infos, *(i for i, _ in tails.values())], skipped=skipped, max_gap=max_gap, join=join)
+    trips.trips = [t for trip in trips.trips for t in _cut_at_tails(trip, tails)]
+    used = {t.parts[0].file.path for t in trips.trips if t.parts[0].file.path in tails}
+    return IngestPlan(trips, sources, known, {p: tails[p][1] for p in used})
+
+
+def _cut_at_tails(trip: Trip, tails: dict) -> list[Trip]:
+    """A trip cut before each archived drive's last file in it: the files before it are a drive of
+    their own, those after it continue that drive; a tail alone is no trip."""
+    out: list[Trip] = []
+    for part in trip.parts:
+        if part.file.path in tails or not out:
+            out.append(Trip(trip.kind, [part]))
+        else:
+            out[-1].parts.append(part)
+    return [t for t in out if not (len(t.parts) == 1 and t.parts[0].file.path in tails)]
+
+
+def _companion(
+    f: Path,
+    head: Path | None,
+    sources: dict[Path, FileSource],
+    known: dict[Path, KnownFile],
+    archived: ArchivedFiles | None,
+) -> FileSource | None:
+    """The companion examination of ``f`` when the primary camera's file of its moment (``head``)
+    was examined in this ingest or is in the archive; None: examine ``f`` on its own."""
+    if head is None:
+        return None
+    if head in sources:
+        p = sources[head]
+        return examine_companion(f, p.clock.start_utc, p.track, p.clock.source, p.path.name)
+    if head in known and archived is not None:
+        found = archived.clock_of(known[head])
+        if found is not None:
+            return examine_companion(f, found[0], found[1], "the archive", known[head].name)
+    return None

@@ -24,7 +24,7 @@ from egovid.core.times import creation_time_utc
 from egovid.core.video import VideoInfo, frame_times, probe
 from egovid.dashcam.align.illumination import best_match
 from egovid.dashcam.align.stops import stopped_frames
-from egovid.dashcam.archive.catalogue import Catalogue, Sequence
+from egovid.dashcam.archive.catalogue import Catalogue, Drive, Sequence
 from egovid.dashcam.archive.store import ORIGIN_META, Archive
 from egovid.dashcam.extract import reference_segments
 from egovid.dashcam.ingest.records import (
@@ -284,6 +284,16 @@ def split_stage(
     return plan
 
 
+def without_drive(plan: SplitPlan, drive: Drive | None) -> SplitPlan:
+    """The plan with ``drive`` no candidate baseline of any piece (a file appended to a drive is
+    never coded against that drive: it would refer to itself)."""
+    if drive is None:
+        return plan
+    for p in plan.pieces:
+        p.candidates = [c for c in p.candidates if c.drive_id != drive.id]
+    return plan
+
+
 def _cut_known_paths(ed: PlannedPaths, plan: SplitPlan, pieces: list, near: list[int]) -> list:
     """Split the known paths where the drive's pieces join or leave them (recorded in ``plan``);
     the key of each piece's path (None for a piece on no known path)."""
@@ -380,12 +390,16 @@ def commit(
     """Record the drive in one catalogue transaction: the origin (first drive), the drive, the
     planned path edits, a segment and a sequence per piece. A commit that finds its ``token`` done
     returns that drive's report (a retried task). Raises :class:`EgovidError` (and changes nothing)
-    when the drive's name is taken."""
+    when the drive's name is taken. A video appended to a drive (``inp.append_at``) adds its
+    frames after the drive's: its segments and sequences are shifted by that many frames."""
     cat = archive.catalogue
     with cat.transaction():
         if inp.token and (done := cat.get_meta(f"ingest:{inp.token}")) is not None:
             return committed_report(archive, int(done))
-        drive_id = _add_drive(archive, inp, vp, track, plan.origin)
+        if inp.append_at is None:
+            drive_id, at = _add_drive(archive, inp, vp, track, plan.origin), 0
+        else:
+            drive_id, at = _extend_drive(archive, inp, vp), inp.append_at
         ed = _replay_paths(cat, plan, drive_id)
         report = IngestReport(drive_id, inp.drive_name, vp.frames)
         report.split_paths = list(plan.split_paths)
@@ -393,10 +407,11 @@ def commit(
         for piece, enc in zip(plan.pieces, encoded, strict=True):
             path_id = ed.id(piece.path)
             params = {**enc.params, "path_id": path_id}
+            frames = (enc.frames[0] + at, enc.frames[1] + at)
             seg_id = cat.add_segment(
-                drive_id, *enc.frames, enc.mode, enc.ref_drive_id, enc.refmap, enc.align, enc.blob, enc.nbytes, params
+                drive_id, *frames, enc.mode, enc.ref_drive_id, enc.refmap, enc.align, enc.blob, enc.nbytes, params
             )
-            cat.add_sequence(drive_id, path_id, *enc.frames, piece.positions, enc.illum, seg_id)
+            cat.add_sequence(drive_id, path_id, *frames, piece.positions, enc.illum, seg_id)
             report.pieces.append(enc.report(path_id))
         if inp.token:
             cat.set_meta(f"ingest:{inp.token}", str(drive_id))
@@ -430,6 +445,22 @@ def _add_drive(archive: Archive, inp: DriveInput, vp: VideoProbe, track: DriveTr
     if inp.extra is not None:
         inp.extra.commit(cat, drive_id)
     return drive_id
+
+
+def _extend_drive(archive: Archive, inp: DriveInput, vp: VideoProbe) -> int:
+    """The drive ``inp`` continues, its frame count raised by the video's (and the rows of
+    ``inp.extra``), inside the commit's transaction; its id. Fails, changing nothing, when the
+    drive is gone or no longer ends where the ingest planned (another ingest appended meanwhile)."""
+    cat = archive.catalogue
+    d = cat.drive(inp.drive_name)
+    if d is None or d.frames != inp.append_at:
+        raise EgovidError(f"drive {inp.drive_name!r} changed while the file was being appended", "run the ingest again")
+    if (d.width, d.height) != (vp.info.width, vp.info.height):
+        raise EgovidError(f"{vp.video.name} has another frame size than drive {d.name!r}", "ingest it with --no-join")
+    cat.set_drive_frames(d.id, d.frames + vp.frames)
+    if inp.extra is not None:
+        inp.extra.commit(cat, d.id)
+    return d.id
 
 
 def _replay_paths(cat: Catalogue, plan: SplitPlan, drive_id: int) -> CataloguePaths:

@@ -21,6 +21,7 @@ from pathlib import Path
 from egovid.core.engine import EngineConfig
 from egovid.core.errors import EgovidError
 from egovid.dashcam.archive.store import Archive
+from egovid.dashcam.ingest.attach import Archived
 from egovid.dashcam.ingest.fleet import ALREADY_IN, PreparedDrive, drive_input, prepare
 from egovid.dashcam.ingest.options import IngestOptions
 from egovid.dashcam.ingest.records import IngestReport
@@ -72,11 +73,13 @@ class DriveOutcome:
 class IngestResult:
     """The end of an ingest: every drive tried (in the order they ended), the files skipped with
     the reason, and whether it was a single drive ingested in this process (its report is then
-    the whole JSON document, as ``--json`` has always written it)."""
+    the whole JSON document, as ``--json`` has always written it); ``known``: how many of the
+    files skipped the archive holds already (same content, whatever their name)."""
 
     drives: list[DriveOutcome] = field(default_factory=list)
     skipped: list[tuple[Path, str]] = field(default_factory=list)
     single: bool = False
+    known: int = 0
 
     @property
     def added(self) -> list[DriveOutcome]:
@@ -145,21 +148,44 @@ def ingest_videos(
     engine = engine or EngineConfig()
     hooks = hooks or IngestHooks()
     plan = plan_ingest(
-        videos, gps=gps, clock=clock, join=join, max_gap=max_gap, on_file=lambda k, n: hooks.progress("examine", k, n)
+        videos,
+        gps=gps,
+        clock=clock,
+        join=join,
+        max_gap=max_gap,
+        on_file=lambda k, n: hooks.progress("examine", k, n),
+        archived=Archived(archive, dedup=name is None),  # --name: a drive of that name, even of known files
     )
     prepared = prepare(archive, plan, name=name, lock_events=lock_events)
     for path, why in plan.skipped:
-        hooks.skipped(path, why)
+        if path not in plan.known:  # those are counted (a card synced again: hundreds of them)
+            hooks.skipped(path, why)
     if not prepared:
         if any(why.startswith(ALREADY_IN) for _, why in plan.skipped):
-            return IngestResult([], plan.skipped)
+            return IngestResult([], plan.skipped, known=len(plan.known))
         raise EgovidError("nothing to ingest: every video was skipped", "see the reasons above")
-    if len(prepared) == 1 and engine.scheduler is None:
-        report = ingest_drive(archive, drive_input(prepared[0]), opts, progress=hooks.progress)
-        outcome = DriveOutcome(prepared[0], report)
+    appends = [p for p in prepared if p.append is not None]
+    new = [p for p in prepared if p.append is None]
+    outcomes = [_append(archive, p, opts, hooks) for p in appends]  # in order, one commit each
+    if len(new) == 1 and not appends and engine.scheduler is None:
+        report = ingest_drive(archive, drive_input(new[0]), opts, progress=hooks.progress)
+        outcome = DriveOutcome(new[0], report)
         hooks.drive(outcome)
-        return IngestResult([outcome], plan.skipped, single=True)
-    return IngestResult(_run_batch(archive, prepared, opts, engine, hooks), plan.skipped)
+        return IngestResult([outcome], plan.skipped, single=True, known=len(plan.known))
+    if new:
+        outcomes += _run_batch(archive, new, opts, engine, hooks)
+    return IngestResult(outcomes, plan.skipped, known=len(plan.known))
+
+
+def _append(archive: Archive, p: PreparedDrive, opts: IngestOptions, hooks: IngestHooks) -> DriveOutcome:
+    """One file appended to an archived drive, in this process (the files of a drive one after
+    another: each expects the frames the one before left). A failure is the drive's outcome."""
+    try:
+        outcome = DriveOutcome(p, ingest_drive(archive, drive_input(p), opts, progress=hooks.progress))
+    except EgovidError as exc:
+        outcome = DriveOutcome(p, error=exc.one_line())
+    hooks.drive(outcome)
+    return outcome
 
 
 def _run_batch(

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from egovid.core.errors import EgovidError
 from egovid.core.video import Frame, iter_frames
+from egovid.dashcam.route.channels import file_camera
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".ts", ".m4v", ".mts", ".webm")
 KINDS = ("drive", "event", "parking")
@@ -94,26 +95,12 @@ def file_kind(path: str | os.PathLike) -> str:
     return "drive"
 
 
-_CHANNEL = (
-    re.compile(r"-(front|back|left_repeater|right_repeater|left_pillar|right_pillar)$", re.IGNORECASE),  # Tesla
-    re.compile(r"^\d{8}_\d{6}_[NEPMIOABTXG]([FRI])", re.IGNORECASE),  # BlackVue
-    re.compile(r"^\d{6}_\d{6}_\d+_([FR])[HL]$", re.IGNORECASE),  # Nextbase 240915_143027_001_RH (camera, quality)
-    re.compile(r"(?:\d|_)[EP]?([FRI])$", re.IGNORECASE),  # Viofo/Novatek …0001F / …0001EF, Thinkware …_F
-)
-_CHANNEL_NAMES = {"f": "front", "r": "rear", "i": "interior", "back": "rear"}
-
-
 def file_channel(path: str | os.PathLike) -> str:
     """The camera of a multi-camera dashcam that wrote the file (``front``, ``rear``, ``interior``,
-    Tesla's ``left_repeater`` …), from its name; ``front`` when the name does not say. Files of
-    different cameras are never joined into one trip."""
-    stem = Path(path).stem
-    for rx in _CHANNEL:
-        m = rx.search(stem)
-        if m:
-            c = m.group(1).lower()
-            return _CHANNEL_NAMES.get(c, c)
-    return "front"
+    Tesla's ``left_repeater`` …), from its name (:mod:`egovid.dashcam.route.channels`); ``front``
+    when the name does not say. Files of different cameras are never joined into one trip (they
+    become the channels of one drive: :func:`egovid.dashcam.ingest.fleet.prepare`)."""
+    return file_camera(path).channel
 
 
 def expand_inputs(paths: Iterable[str | os.PathLike]) -> list[Path]:

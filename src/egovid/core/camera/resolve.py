@@ -2,11 +2,13 @@
 
 :func:`resolve_camera` is the one place that decides a video's intrinsics, in this order:
 
-1. ``--focal PX`` or ``--hfov DEG`` given by the user;
+1. ``--focal PX`` or ``--hfov DEG`` given by the user (through the lens of step 3 where the
+   camera recorded one);
 2. (in :mod:`egovid.core.motion.source`, when a gyro is recorded) the focal length fitted from the
    gyro against the video;
 3. the lens mode the camera recorded (GoPro ``VFOV``: Wide, Medium, Narrow, SuperView, Linear),
-   through GoPro's published field of view and an equidistant (fisheye) lens;
+   through GoPro's published field of view and an equidistant (fisheye) lens; a GoPro file that
+   records none is taken as Wide (GoPro's default mode);
 4. a 35 mm-equivalent focal length in the file's metadata (phones; read with ExifTool);
 5. the default camera of :mod:`egovid.core.camera.intrinsics`.
 """
@@ -24,6 +26,7 @@ from egovid.core.camera.intrinsics import (
     Intrinsics,
     resolve_intrinsics,
 )
+from egovid.core.camera.lens import EQUIDISTANT, PINHOLE, Lens
 from egovid.core.camera.telemetry import CameraTelemetry, read_camera_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.video import probe
@@ -53,18 +56,20 @@ class CameraModel:
 
     ``source`` is one of ``"flag"``, ``"gyro-fit"``, ``"lens-mode"``, ``"35mm-equivalent"``,
     ``"default"``; ``detail`` says what exactly (in words); ``rotation`` the container's display
-    rotation in degrees (the intrinsics already account for it).
+    rotation in degrees (the intrinsics already account for it); ``lens`` its projection
+    (:mod:`egovid.core.camera.lens`: fisheye where the camera recorded a fisheye lens mode).
     """
 
     intrinsics: Intrinsics
     source: str
     detail: str
     rotation: int = 0
+    lens: Lens = PINHOLE
 
     def with_focal(self, focal_px: float, source: str, detail: str) -> CameraModel:
-        """The same camera with another focal length (pixels)."""
+        """The same camera (and lens) with another focal length (pixels)."""
         i = self.intrinsics
-        return CameraModel(Intrinsics.from_focal(i.width, i.height, focal_px), source, detail, self.rotation)
+        return CameraModel(Intrinsics.from_focal(i.width, i.height, focal_px), source, detail, self.rotation, self.lens)
 
     def to_dict(self) -> dict:
         """JSON-ready description (pixels and degrees)."""
@@ -78,10 +83,11 @@ class CameraModel:
             "source": self.source,
             "detail": self.detail,
             "rotation": self.rotation,
+            "lens": self.lens.describe(),
         }
 
 
-def _lens_mode_focal(long_side: int, mode: str) -> tuple[float, str] | None:
+def _lens_mode_focal(long_side: int, mode: str) -> tuple[float, str, Lens] | None:
     code = mode.strip().upper()[:1]
     if code not in GOPRO_LENS_HFOV:
         return None
@@ -89,7 +95,7 @@ def _lens_mode_focal(long_side: int, mode: str) -> tuple[float, str] | None:
     half = math.radians(hfov / 2.0)
     focal = long_side / 2.0 / (half if fisheye else math.tan(half))
     kind = "equidistant fisheye" if fisheye else "rectilinear"
-    return focal, f"{hfov:g}° published field of view, {kind}"
+    return focal, f"{hfov:g}° published field of view, {kind}", EQUIDISTANT if fisheye else PINHOLE
 
 
 def resolve_camera(
@@ -109,25 +115,29 @@ def resolve_camera(
     info = probe(video)
     w, h, rot = info.width, info.height, info.rotation
     long_side = max(w, h)
-    if focal is not None or hfov is not None:
-        intr = resolve_intrinsics(w, h, focal, hfov)
-        what = f"--focal {focal:g} px" if focal is not None else f"--hfov {hfov:g}° across the long side"
-        return CameraModel(intr, "flag", what, rot)
     if telemetry is None:
         try:
             telemetry = read_camera_telemetry(video)
         except EgovidError:
             telemetry = None
-    camera = " ".join(x for x in (getattr(telemetry, "make", None), getattr(telemetry, "model", None)) if x)
     mode = getattr(telemetry, "lens_mode", None)
-    if mode:
-        found = _lens_mode_focal(long_side, mode)
-        if found is not None:
-            f, how = found
-            name = telemetry.lens_name or mode
-            return CameraModel(
-                Intrinsics.from_focal(w, h, f), "lens-mode", f"{camera} {name} lens ({how})".strip(), rot
-            )
+    assumed = False
+    if not mode and (getattr(telemetry, "make", None) or "").lower() == "gopro":
+        mode, assumed = "W", True  # GoPro's default lens mode (Wide) where the file does not say
+    found = _lens_mode_focal(long_side, mode) if mode else None
+    if focal is not None or hfov is not None:
+        # The user's focal length or field of view, through the lens the camera recorded.
+        lens = found[2] if found is not None else PINHOLE
+        intr = resolve_intrinsics(w, h, focal, hfov)
+        what = f"--focal {focal:g} px" if focal is not None else f"--hfov {hfov:g}° across the long side"
+        return CameraModel(intr, "flag", what, rot, lens)
+    camera = " ".join(x for x in (getattr(telemetry, "make", None), getattr(telemetry, "model", None)) if x)
+    if found is not None:
+        f, how, lens = found
+        name = "Wide (assumed: the file records no lens mode)" if assumed else telemetry.lens_name or mode
+        return CameraModel(
+            Intrinsics.from_focal(w, h, f), "lens-mode", f"{camera} {name} lens ({how})".strip(), rot, lens
+        )
     f35 = getattr(telemetry, "zoom_35mm", None)
     if f35 is None:
         if tags is None:

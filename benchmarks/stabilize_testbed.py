@@ -3,9 +3,10 @@
 For every case (intended motion + known shake, rendered with its truth; see the module), in the
 same run and on the same rendered input:
 
-* **egovid**: ``stabilize()`` with its defaults (what ``fpv stabilize`` runs); motion from vision,
-  or ``--gyro`` from the case's gyro (the true orientation sampled at 200 Hz, which is what a
-  synced camera gyro gives) where the case has one;
+* **egovid**: ``stabilize_video()`` with its defaults (what ``fpv stabilize`` runs: the thesis'
+  plan and the visible-shake layer below it); motion from vision, or ``--gyro`` from the case's
+  gyro (the true orientation sampled at 200 Hz, which is what a synced camera gyro gives) where
+  the case has one; **egovid-plan**: the same with ``visible=False`` (the thesis' plan alone);
 * **vid.stab**: ffmpeg's two passes as a user runs them (detect defaults, smoothing 15, optimal
   static zoom, borders kept);
 * **Gyroflow's method** (cases with a gyro): its Default smoothing (smoothness 0.5) of the gyro
@@ -41,13 +42,11 @@ from pathlib import Path
 import numpy as np
 
 from egovid.core.motion.estimate import estimate_motion
-from egovid.core.rotations import matrix_from_euler
+from egovid.core.motion.source import camera_motion
 from egovid.fpv.stabilize.gyroflow_peer import plan_gyroflow, run_gyroflow
 from egovid.fpv.stabilize.measure import motion_scores
-from egovid.fpv.stabilize.pipeline import stabilize
-from egovid.fpv.stabilize.render import homographies, render_stabilized
+from egovid.fpv.stabilize.run import stabilize_video
 from egovid.fpv.stabilize.vidstab import run_vidstab
-from egovid.fpv.stabilize.visible import visible_path
 from egovid.synth.testbed import CaseTruth, default_cases, render_case
 
 from _common import ROOT, cache_dir, report
@@ -88,17 +87,6 @@ def _fpmi(before: float, after: float) -> float:
     return (1.0 - after) / lost if lost > 1e-9 else float("nan")
 
 
-def render_visible(src: Path, dst: Path, original: np.ndarray, plan: np.ndarray, intr, fps: float):
-    """egovid with the visible-shake layer below the plan (:mod:`egovid.fpv.stabilize.visible`):
-    the plan low-passed as far as its FPMI allows, bent into the 1.10 zoom budget, rendered."""
-    fitted, vt = visible_path(original, plan, intr, fps, max_zoom=1.10)
-    R_old = matrix_from_euler(original[:, 0], original[:, 1], original[:, 2])
-    p = fitted.path
-    H = homographies(R_old, matrix_from_euler(p[:, 0], p[:, 1], p[:, 2]), intr)
-    render_stabilized(src, dst, H, keep=fitted.keep)
-    return vt
-
-
 def bench_case(case, folder: Path, use_gyro: bool) -> dict:
     src = folder / f"{case.name}.mp4"
     truth = render_case(case, src)
@@ -114,15 +102,20 @@ def bench_case(case, folder: Path, use_gyro: bool) -> dict:
 
     # The gyro path: the true orientation at the frame centres (a synced gyro, no vision).
     motion = truth.trajectory() if use_gyro and truth.gyro is not None else None
-    outs["egovid"] = folder / f"{case.name}.egovid.mp4"
     t = time.perf_counter()
-    res = stabilize(src, outs["egovid"], intrinsics=intr, motion=motion, measure=False)
-    seconds["egovid"] = time.perf_counter() - t
-    outs["egovid-visible"] = folder / f"{case.name}.egovid-visible.mp4"
-    t = time.perf_counter()
-    vt = render_visible(src, outs["egovid-visible"], res.original, res.plan, intr, case.fps)
-    seconds["egovid-visible"] = time.perf_counter() - t + res.seconds["motion"] + res.seconds["plan"]
-    row["visible_cutoff_hz"] = vt.cutoff_hz
+    if motion is None:  # what `fpv stabilize` estimates, once for both egovid variants
+        motion = camera_motion(src, "auto", focal=intr.focal).trajectory
+    t_motion = time.perf_counter() - t
+    for name, visible in (("egovid", True), ("egovid-plan", False)):
+        outs[name] = folder / f"{case.name}.{name}.mp4"
+        t = time.perf_counter()
+        res = stabilize_video(
+            src, outs[name], motion=motion, focal=intr.focal, max_zoom=1.10, visible=visible, measure=False
+        )
+        seconds[name] = time.perf_counter() - t + t_motion
+        if visible:
+            row["visible_cutoff_hz"] = res.visible.cutoff_hz if res.visible else None
+            row["egovid_zoom_max_planned"] = round(float(np.max(1 / res.keep)), 3)
     outs["vidstab"] = folder / f"{case.name}.vidstab.mp4"
     seconds["vidstab"] = run_vidstab(src, outs["vidstab"], folder / "work", defaults=True).seconds
     if truth.gyro is not None:
@@ -146,10 +139,10 @@ def bench_case(case, folder: Path, use_gyro: bool) -> dict:
             "seconds": round(seconds[name], 2),
         }
     if "egovid" in row and "vidstab" in row:
-        row["egovid_default_jitter_over_vidstab"] = round(
-            row["egovid"]["jitter"] / max(row["vidstab"]["jitter"], 1e-9), 3
+        row["egovid_plan_jitter_over_vidstab"] = round(
+            row["egovid-plan"]["jitter"] / max(row["vidstab"]["jitter"], 1e-9), 3
         )
-        e, v = row["egovid-visible"], row["vidstab"]
+        e, v = row["egovid"], row["vidstab"]
         fp = e["fpmi_vs_truth"] if e["fpmi_vs_truth"] is not None else e["fpmi_kept"]
         row["egovid_jitter_over_vidstab"] = round(e["jitter"] / max(v["jitter"], 1e-9), 3)
         row["targets_met"] = {
@@ -157,13 +150,12 @@ def bench_case(case, folder: Path, use_gyro: bool) -> dict:
             "zoom_le_1.10": e["zoom"] <= 1.10 + 1e-3,
             "fpmi_ge_90": fp >= 0.9,
         }
-        row["egovid_zoom_max_planned"] = round(float(np.max(1 / res.keep)), 3)
     return row
 
 
 def table(rows: list[dict]) -> str:
-    head = "| case | input jitter | truth ceiling | egovid jitter / zoom / FPMI (truth) / VE | egovid-visible |"
-    head += " vid.stab | Gyroflow | egovid-visible ÷ vid.stab |"
+    head = "| case | input jitter | truth ceiling | egovid jitter / zoom / FPMI (truth) / VE | egovid-plan |"
+    head += " vid.stab | Gyroflow | egovid ÷ vid.stab |"
     lines = [head, "|" + " --- |" * 8]
     for r in rows:
 
@@ -176,7 +168,7 @@ def table(rows: list[dict]) -> str:
 
         lines.append(
             f"| {r['case']} | {r['input']['jitter']:.3f} | {r['truth_ceiling_jitter']:.3f} | {cell('egovid')} | "
-            f"{cell('egovid-visible')} | "
+            f"{cell('egovid-plan')} | "
             f"{cell('vidstab')} | {cell('gyroflow')} | {r.get('egovid_jitter_over_vidstab', float('nan')):.2f} |"
         )
     return "\n".join(lines)
@@ -196,7 +188,7 @@ def main() -> None:
         latest: dict[str, dict] = {}
         for line in (CACHE / "results.jsonl").read_text().splitlines():
             r = json.loads(line)
-            if r["benchmark"].startswith("stabilize_testbed/") and "egovid-visible" in r and r["time"] >= args.since:
+            if r["benchmark"].startswith("stabilize_testbed/") and "egovid-plan" in r and r["time"] >= args.since:
                 latest[r["case"]] = r
         order = [c.name for c in default_cases()]
         print(table([latest[n] for n in order if n in latest]))

@@ -31,6 +31,8 @@ def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
     s = json.loads((tmp_path / "r.json").read_text())
     mb, ma = s["measured"]["before"], s["measured"]["after"]
     assert ma["ve"] > mb["ve"] and ma["itf_db"] > mb["itf_db"] and ma["ve2d"] > mb["ve2d"]
+    assert ma["shake_px"] < mb["shake_px"] and s["warnings"] == []  # the decoded pictures shake less
+    assert s["params"]["visible"] and s["visible_cutoff_hz"] in (0.5, 1.0, 2.0, 4.0, None)
     assert s["planned"]["after"]["ve"] > s["planned"]["before"]["ve"]
     assert 1.0 <= s["zoom"]["mean"] <= s["zoom"]["max"] <= 1.10 + 1e-9
     html = (tmp_path / "r.html").read_text()
@@ -46,6 +48,12 @@ def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
         assert r.returncode == 0, r.stderr
         runs.append(json.loads((tmp_path / f"d{k}.json").read_text()))
     assert {**runs[0], "output": None} == {**runs[1], "output": None}
+    # The horizon lock and a smaller zoom budget, from the command line.
+    args = ("-o", tmp_path / "h.mp4", "--motion", tmp_path / "m.csv", "--json", tmp_path / "h.json")
+    r = run_cli("fpv", "stabilize", src, *args, "--no-measure", "--horizon-lock", "--max-zoom", "1.05")
+    assert r.returncode == 0, r.stderr
+    h = json.loads((tmp_path / "h.json").read_text())
+    assert h["params"]["horizon_lock"] and h["zoom"]["max"] <= 1.05 + 1e-9
 
 
 def _add_audio(video, dst):

@@ -228,23 +228,19 @@ def _shake(original: Path, output: Path) -> float:
 
 
 def test_visible_layer_beats_vidstab_on_a_shaky_drive_measured_on_the_decoded_output(tmp_path):
-    """Known truth as the gyro path (no vision): egovid's plan + visible layer, rendered and decoded,
-    against vid.stab's two passes on the same input, by shake.py itself."""
-    from egovid.fpv.stabilize.pipeline import plan_motion
-    from egovid.fpv.stabilize.render import render_stabilized
+    """Known truth as the gyro path (no vision): `fpv stabilize`'s function (the plan and the
+    visible layer below it, by default), its output decoded, against vid.stab's two passes on the
+    same input, by shake.py itself."""
+    from egovid.fpv.stabilize.run import stabilize_video
     from egovid.fpv.stabilize.vidstab import run_vidstab
-    from egovid.fpv.stabilize.visible import visible_path
 
     c = Case("d", "drive", "vibration", fps=25.0, width=320, height=180, seconds=3.0, shake_deg=0.15, seed=6)
     src = tmp_path / "d.mp4"
     tr = render_case(c, src)
     intr = c.intrinsics()
-    plan, _ = plan_motion(tr.angles, c.fps, intr)
-    fitted, vt = visible_path(tr.angles, plan, intr, c.fps)
-    assert vt.cutoff_hz is not None and np.max(1 / fitted.keep) <= 1.10 + 1e-6
-    H = homographies(_rot(tr.angles), _rot(fitted.path), intr)
     out = tmp_path / "d.egovid.mp4"
-    render_stabilized(src, out, H, keep=fitted.keep)
+    res = stabilize_video(src, out, motion=tr.trajectory(), focal=intr.focal, measure=False)
+    assert res.visible is not None and res.visible.cutoff_hz is not None and np.max(1 / res.keep) <= 1.10 + 1e-6
     vs = tmp_path / "d.vidstab.mp4"
     run_vidstab(src, vs, tmp_path, defaults=True)
     (j_in, _), (j_eg, z_eg), (j_vs, _) = _shake(src, src), _shake(src, out), _shake(src, vs)

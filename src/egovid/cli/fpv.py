@@ -6,7 +6,15 @@ from pathlib import Path
 
 import typer
 
-from egovid.cli.common import ALLOW_TRUNCATED, all_or_nothing, console, parse_ints, parse_size, staged_progress
+from egovid.cli.common import (
+    ALLOW_TRUNCATED,
+    all_or_nothing,
+    console,
+    err_console,
+    parse_ints,
+    parse_size,
+    staged_progress,
+)
 from egovid.cli.validate import CSV, HTML, JSON, PLOT, TUM, VIDEO_OUT, choice, input_file, number, outputs, video_input
 
 app = typer.Typer(
@@ -203,7 +211,16 @@ def stabilize_cmd(
         "crop", help="crop (a zoom that follows the need, no borders) | black | fill (temporal mosaic)."
     ),
     max_zoom: float = typer.Option(
-        1.10, "--max-zoom", help="Largest zoom the crop may use (1.10 = 10 %); the path bends to fit it."
+        1.10,
+        "--max-zoom",
+        help="Largest zoom the crop may use (1.10 = 10 %); the zoom follows the need frame by frame and the "
+        "path bends to stay within it.",
+    ),
+    horizon_lock: bool = typer.Option(
+        False,
+        "--horizon-lock",
+        help="Level every view with gravity (the accelerometer's where the camera logs one, else the path's "
+        "mean down direction).",
     ),
     keep_roll: bool = typer.Option(False, "--keep-roll", help="Keep intentional roll instead of levelling it."),
     method: str = typer.Option("ve", help="Stability measure of the objective: ve | sve."),
@@ -232,7 +249,9 @@ def stabilize_cmd(
     the video becomes comfortable to watch while the first-person feeling remains (maximising VE
     of the new motion minus VE of its zigzag), then eased between anchors. That plan is then bent
     into what a zoom of at most --max-zoom can cover, with the zoom itself changing smoothly over
-    time. Unless --no-measure, the output is decoded and measured again, next to the plan.
+    time. Below the plan, what a viewer sees as shake is removed as far as the plan's first-person
+    motion allows (the plan low-passed at the lowest cutoff that keeps 90 % of its FPMI).
+    Unless --no-measure, the output is decoded and measured again, next to the plan.
     """
     from egovid.fpv.stabilize.run import check_options, saved_motion_paths, stabilize_video
 
@@ -252,7 +271,8 @@ def stabilize_cmd(
         res = stabilize_video(
             src, out, source=source, focal=focal, hfov=hfov, motion=motion, strength=strength, borders=borders,
             max_zoom=max_zoom, keep_roll=keep_roll, method=method, anchor_threshold=anchor_threshold, crf=crf,
-            measure=measure, save_motion=save_motion, json_out=json_out, report=report, progress=cb,
+            measure=measure, horizon_lock=horizon_lock, save_motion=save_motion, json_out=json_out, report=report,
+            progress=cb,
         )  # fmt: skip
     s = res.summary()
     pb, pa = s["planned"]["before"], s["planned"]["after"]
@@ -267,6 +287,7 @@ def stabilize_cmd(
             f"measured  VE {mb['ve']:.3f} → {ma['ve']:.3f}   2D-VE {mb['ve2d']:.3f} → {ma['ve2d']:.3f}   "
             f"ITF {mb['itf_db']:.2f} → {ma['itf_db']:.2f} dB   "
             f"jitter {mb['jitter_px']:.3f} → {ma['jitter_px']:.3f} px   "
+            f"shake {mb['shake_px']:.3f} → {ma['shake_px']:.3f} px   "
             f"first-person motion kept {100 * s['fpmi_retention_measured']:.1f} %"
         )
     secs = res.seconds
@@ -276,6 +297,8 @@ def stabilize_cmd(
     )
     for note in s["notes"]:
         console.print(f"note    {note}")
+    for warning in s["warnings"]:
+        err_console.print(f"warning: {warning}")
     console.print(f"video   {out}")
     if json_out is not None:
         console.print(f"JSON    {json_out}")

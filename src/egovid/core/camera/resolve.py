@@ -12,8 +12,13 @@ JSON says which, and why, under ``intrinsics.source``/``detail``):
 4. (in :mod:`egovid.core.motion.source`, when a gyro is recorded) the focal length fitted from the
    gyro against the video (``gyro-fit``), which refines only what follows;
 5. the lens mode the camera recorded (GoPro ``VFOV``: Wide, Medium, Narrow, SuperView, Linear),
-   through GoPro's published field of view and an equidistant (fisheye) lens (``lens-mode``);
+   through GoPro's published field of view and an equidistant (fisheye) lens (``lens-mode``); a
+   GoPro file that records none is taken as Wide (GoPro's default mode);
 6. the default camera of :mod:`egovid.core.camera.intrinsics` (``default``).
+
+A fisheye lens is the intrinsics' OpenCV-fisheye ``distortion`` (``k = 0``: equidistant), and
+:attr:`CameraModel.lens` is the same lens for projecting rays (:mod:`egovid.core.camera.lens`); a
+``--focal``/``--hfov`` given by the user keeps the lens kind the camera recorded.
 
 The frame readout time of a rolling shutter comes with it: GoPro's ``SROT`` (the file's own),
 else the profile's calibrated one for this very mode (``readout_ms``, ``readout_source``).
@@ -23,7 +28,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from egovid.core.camera.exif import find_tag, read_tags
 from egovid.core.camera.intrinsics import (
@@ -32,6 +37,7 @@ from egovid.core.camera.intrinsics import (
     Intrinsics,
     resolve_intrinsics,
 )
+from egovid.core.camera.lens import EQUIDISTANT, PINHOLE, Lens
 from egovid.core.camera.lens_profiles import find_profile
 from egovid.core.camera.telemetry import CameraTelemetry, read_camera_telemetry
 from egovid.core.errors import EgovidError
@@ -73,14 +79,19 @@ class CameraModel:
     readout_source: str = ""
     profile: dict | None = None
 
+    @property
+    def lens(self) -> Lens:
+        """How the lens maps rays to pixels: the OpenCV fisheye of the intrinsics' distortion, else a pinhole."""
+        d = self.intrinsics.distortion
+        return PINHOLE if d is None else Lens("fisheye", tuple(float(x) for x in d))
+
     def with_focal(self, focal_px: float, source: str, detail: str) -> CameraModel:
-        """The same camera with another focal length (pixels; a pinhole: a profile's distortion
-        belongs to its own focal length)."""
+        """The same camera with another focal length (pixels). An equidistant fisheye stays one; a
+        profile's distortion terms belong to its own focal length, so they are dropped (a pinhole)."""
         i = self.intrinsics
-        return CameraModel(
-            Intrinsics.from_focal(i.width, i.height, focal_px), source, detail, self.rotation,
-            self.readout_ms, self.readout_source,
-        )  # fmt: skip
+        keep = i.distortion if i.distortion is not None and not any(i.distortion) else None
+        intr = replace(Intrinsics.from_focal(i.width, i.height, focal_px), distortion=keep)
+        return CameraModel(intr, source, detail, self.rotation, self.readout_ms, self.readout_source)
 
     def to_dict(self) -> dict:
         """JSON-ready description (pixels and degrees)."""
@@ -94,6 +105,7 @@ class CameraModel:
             "source": self.source,
             "detail": self.detail,
             "rotation": self.rotation,
+            "lens": self.lens.describe(),
             "distortion_fisheye_k": list(i.distortion) if i.distortion is not None else None,
             "readout_ms": self.readout_ms,
             "readout_source": self.readout_source or None,
@@ -101,7 +113,9 @@ class CameraModel:
         }
 
 
-def _lens_mode_focal(long_side: int, mode: str) -> tuple[float, str] | None:
+def _lens_mode_focal(long_side: int, mode: str) -> tuple[float, str, bool] | None:
+    """GoPro's published lens mode ``mode`` at ``long_side`` pixels: (focal length in pixels, how,
+    whether the lens is an equidistant fisheye); None for a mode egovid does not know."""
     code = mode.strip().upper()[:1]
     if code not in GOPRO_LENS_HFOV:
         return None
@@ -109,7 +123,7 @@ def _lens_mode_focal(long_side: int, mode: str) -> tuple[float, str] | None:
     half = math.radians(hfov / 2.0)
     focal = long_side / 2.0 / (half if fisheye else math.tan(half))
     kind = "equidistant fisheye" if fisheye else "rectilinear"
-    return focal, f"{hfov:g}° published field of view, {kind}"
+    return focal, f"{hfov:g}° published field of view, {kind}", fisheye
 
 
 def resolve_camera(
@@ -129,15 +143,22 @@ def resolve_camera(
     info = probe(video)
     w, h, rot = info.width, info.height, info.rotation
     long_side = max(w, h)
-    if focal is not None or hfov is not None:
-        intr = resolve_intrinsics(w, h, focal, hfov)
-        what = f"--focal {focal:g} px" if focal is not None else f"--hfov {hfov:g}° across the long side"
-        return CameraModel(intr, "flag", what, rot)
     if telemetry is None:
         try:
             telemetry = read_camera_telemetry(video)
         except EgovidError:
             telemetry = None
+    mode = getattr(telemetry, "lens_mode", None)
+    assumed = False
+    if not mode and (getattr(telemetry, "make", None) or "").lower() == "gopro":
+        mode, assumed = "W", True  # GoPro's default lens mode (Wide) where the file does not say
+    found = _lens_mode_focal(long_side, mode) if mode else None
+    if focal is not None or hfov is not None:  # the user's, through the lens the camera recorded
+        intr = resolve_intrinsics(w, h, focal, hfov)
+        if found is not None and found[2]:
+            intr = replace(intr, distortion=EQUIDISTANT.k)
+        what = f"--focal {focal:g} px" if focal is not None else f"--hfov {hfov:g}° across the long side"
+        return CameraModel(intr, "flag", what, rot)
     camera = " ".join(x for x in (getattr(telemetry, "make", None), getattr(telemetry, "model", None)) if x)
     readout = getattr(telemetry, "readout_ms", None)
     readout_from = "the file (GoPro SROT)" if readout else ""
@@ -156,9 +177,8 @@ def resolve_camera(
                 Intrinsics.from_focal(w, h, f), "35mm-equivalent", f"{f35:g} mm (35 mm equivalent)", rot,
                 readout, readout_from,
             )  # fmt: skip
-    mode = getattr(telemetry, "lens_mode", None)
     looked = find_profile(
-        getattr(telemetry, "make", None), _model_of(telemetry), w, h, lens=mode,
+        getattr(telemetry, "make", None), _model_of(telemetry), w, h, lens=None if assumed else mode,
         stabilized=getattr(telemetry, "electronically_stabilized", None), fps=info.fps,
     )  # fmt: skip
     if looked.match is not None:
@@ -167,13 +187,12 @@ def resolve_camera(
             readout, readout_from = m.readout_ms, "the lens profile"
         intr = Intrinsics(w, h, m.fx, m.fy, m.cx, m.cy, m.distortion)
         return CameraModel(intr, "lens-profile", looked.reason, rot, readout, readout_from, m.to_dict())
-    if mode:
-        found = _lens_mode_focal(long_side, mode)
-        if found is not None:
-            f, how = found
-            name = telemetry.lens_name or mode
-            detail = f"{camera} {name} lens ({how}); no lens profile: {looked.reason}".strip()
-            return CameraModel(Intrinsics.from_focal(w, h, f), "lens-mode", detail, rot, readout, readout_from)
+    if found is not None:
+        f, how, fisheye = found
+        name = "Wide (assumed: the file records no lens mode)" if assumed else telemetry.lens_name or mode
+        detail = f"{camera} {name} lens ({how}); no lens profile: {looked.reason}".strip()
+        intr = replace(Intrinsics.from_focal(w, h, f), distortion=EQUIDISTANT.k if fisheye else None)
+        return CameraModel(intr, "lens-mode", detail, rot, readout, readout_from)
     return CameraModel(
         Intrinsics.default(w, h), "default",
         f"{DEFAULT_FOCAL_AT_1080P:g} px at 1920 px, scaled to the long side; no lens profile: {looked.reason}",

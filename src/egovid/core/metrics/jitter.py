@@ -8,6 +8,12 @@ hand tremor, footsteps and vibration, above the head bob and pans a stabiliser k
 directions. It is independent of egovid's motion estimator, the stabiliser's own plan and any
 stabiliser's zoom model, so it can compare egovid with vid.stab on equal terms; a zoomed output
 is measured in its own (magnified) pixels, as a viewer sees it.
+
+:func:`shake_rms` is the visible-shake figure of the acceptance measure (``shake.py``): the same
+image path minus its centred 15-frame moving average (edge-padded), RMS per axis, x + y. It counts
+everything above about 1.5 Hz at 30 fps in full, a walking bob as much as hand tremor, and the
+start and stop of a pan by their acceleration; a zoomed output's shifts are divided by its zoom
+(original pixels at the measuring width).
 """
 
 from __future__ import annotations
@@ -26,6 +32,32 @@ def high_pass_rms(path: np.ndarray, fps: float, cutoff_hz: float = 3.0) -> float
     sos = butter(4, cutoff_hz, btype="highpass", fs=fps, output="sos")
     hp = sosfiltfilt(sos, p, axis=0, padtype="odd", padlen=min(len(p) - 1, 3 * 12))
     return float(np.sqrt(np.mean(np.sum(hp * hp, axis=1))))
+
+
+#: Frames of the centred moving average that :func:`shake_rms` measures against (``shake.py``'s).
+SHAKE_WINDOW = 15
+
+
+def shake_rms(path: np.ndarray, window: int = SHAKE_WINDOW) -> float:
+    """x + y RMS (units of ``path``, (K, 2)) of the path minus its centred ``window``-frame moving
+    average, the ends padded with the first and last value."""
+    p = np.asarray(path, dtype=float)
+    if len(p) < 2:
+        return float("nan")
+    h = window // 2
+    pad = np.pad(p, ((h, h), (0, 0)), mode="edge")
+    c = np.concatenate([np.zeros((1, p.shape[1])), np.cumsum(pad, axis=0)])
+    ma = (c[window:] - c[:-window]) / window
+    return float(np.sqrt(np.mean((p - ma[: len(p)]) ** 2, axis=0)).sum())
+
+
+def unzoomed(path: np.ndarray, zoom: np.ndarray | float) -> np.ndarray:
+    """The image path (K, 2) of a video zoomed by ``zoom`` ((K,) or scalar) in unzoomed pixels:
+    each frame's shift from the previous divided by that frame's zoom."""
+    p = np.asarray(path, dtype=float)
+    z = np.broadcast_to(np.asarray(zoom, dtype=float), (len(p),))
+    d = np.diff(p, axis=0) / z[1:, None]
+    return np.concatenate([p[:1], p[:1] + np.cumsum(d, axis=0)])
 
 
 class ShiftPath:

@@ -34,8 +34,9 @@ import numpy as np
 from numba import njit
 
 from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.camera.lens import PINHOLE, Lens
 from egovid.core.errors import EgovidError
-from egovid.fpv.stabilize.warp import FrameView, MeshWarp, rows_at
+from egovid.fpv.stabilize.warp import FrameView, MeshWarp, required_zoom, rows_at
 
 #: Gyroflow's defaults (Default algorithm, adaptive zoom, zoom limit).
 SMOOTHNESS = 0.5
@@ -178,23 +179,6 @@ def envelope_zoom(
     return np.minimum(1.0 / fov, max_zoom)
 
 
-def required_zoom(warp: MeshWarp, views: list[FrameView], max_zoom: float = 4.0) -> np.ndarray:
-    """(K,) the least zoom that keeps each view's output frame inside its source (bisection)."""
-    out = np.ones(len(views))
-    for k, v in enumerate(views):
-        if warp.coverage_shortfall(FrameView(v.R_new, v.R_rows, 1.0)) <= 0.0:
-            continue
-        lo, hi = 1.0, max_zoom
-        for _ in range(24):
-            mid = 0.5 * (lo + hi)
-            if warp.coverage_shortfall(FrameView(v.R_new, v.R_rows, mid)) <= 0.0:
-                hi = mid
-            else:
-                lo = mid
-        out[k] = hi
-    return out
-
-
 @dataclass
 class GyroflowPlan:
     """What the peer renders: the per-frame views and zoom, and the smoothed orientations at the
@@ -217,10 +201,12 @@ def plan_gyroflow(
     horizon_down: np.ndarray | None = None,
     max_zoom: float = MAX_ZOOM,
     bands: int = 16,
+    lens: Lens = PINHOLE,
 ) -> GyroflowPlan:
     """Gyroflow's views of every frame: ``gyro_R`` (N, 3, 3) camera-to-world orientations at
     ``gyro_times`` (N,) seconds on the video clock; frames start their readout at
-    ``frame_times`` (K,); ``horizon_down`` the world's down direction to lock the horizon to."""
+    ``frame_times`` (K,); ``horizon_down`` the world's down direction to lock the horizon to;
+    ``lens`` the camera's projection (Gyroflow warps through the lens profile)."""
     from scipy.spatial.transform import Rotation, Slerp
 
     rot = Rotation.from_matrix(gyro_R)
@@ -239,7 +225,7 @@ def plan_gyroflow(
     rows = np.clip(rows_at(frame_times, readout_s, b), lo, hi)
     R_rows = raw(rows.ravel()).as_matrix().reshape(len(frame_times), b, 3, 3)
     views = [FrameView(R_new[k], R_rows[k], 1.0) for k in range(len(frame_times))]
-    warp = MeshWarp(intr, rotation)
+    warp = MeshWarp(intr, rotation, lens=lens)
     zoom = envelope_zoom(required_zoom(warp, views), fps, max_zoom=max_zoom)
     for v, z in zip(views, zoom, strict=True):
         v.zoom = float(z)
@@ -254,10 +240,11 @@ def run_gyroflow(
     *,
     rotation: int = 0,
     crf: int = 18,
+    lens: Lens = PINHOLE,
 ) -> float:
     """Render ``plan`` from ``src`` into ``dst``; returns the seconds it took."""
     from egovid.fpv.stabilize.render_views import render_views
 
     if len(plan.views) == 0:
         raise EgovidError("nothing to render", "give the frames' views")
-    return render_views(src, dst, plan.views, MeshWarp(intr, rotation), crf=crf).seconds
+    return render_views(src, dst, plan.views, MeshWarp(intr, rotation, lens=lens), crf=crf).seconds

@@ -4,7 +4,8 @@ For the stabiliser's before/after: the camera motion is re-estimated from the de
 (:func:`egovid.core.motion.estimate.estimate_motion`), and from it VE, SVE and the VE of the pure
 first-person motion (the FPMI measure, thesis §9.2); 2D-VE comes from the optical flow of the
 decoded frames; ITF (eq. 10.9–10.11) from their luma, masked by geometry where the stabiliser
-left borders; high-frequency jitter from phase correlation (:mod:`egovid.core.metrics.jitter`).
+left borders; high-frequency jitter and the visible shake (``shake.py``'s figure) from phase
+correlation (:mod:`egovid.core.metrics.jitter`).
 The same functions score the plan (:func:`motion_scores`), so the report can show planned and
 measured side by side.
 """
@@ -19,7 +20,7 @@ import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.metrics.itf import ITFAccumulator
-from egovid.core.metrics.jitter import ShiftPath, high_pass_rms
+from egovid.core.metrics.jitter import ShiftPath, high_pass_rms, shake_rms, unzoomed
 from egovid.core.motion.estimate import estimate_motion
 from egovid.core.video import iter_frames, probe
 from egovid.fpv.perception.model import ViewingModel, to_model_rate
@@ -70,8 +71,9 @@ def motion_scores(
 
 @dataclass
 class VideoMeasures:
-    """Everything measured on a decoded video (see the module docstring); ``motion`` is the
-    re-estimated (K, 3) motion in degrees (None when it was given)."""
+    """Everything measured on a decoded video (see the module docstring); ``jitter_px`` above
+    3 Hz and ``shake_px`` (``shake.py``'s x + y, unzoomed) in pixels at 480 px width; ``motion``
+    is the re-estimated (K, 3) motion in degrees (None when it was given)."""
 
     ve: float
     sve: float
@@ -79,6 +81,7 @@ class VideoMeasures:
     ve2d: float
     itf_db: float
     jitter_px: float
+    shake_px: float = float("nan")
     motion: np.ndarray | None = None
 
     def to_dict(self) -> dict:
@@ -93,8 +96,10 @@ def pixel_measures(
     *,
     jitter_width: int = 480,
     cutoff_hz: float = 3.0,
-) -> tuple[float, float]:
-    """(masked ITF in dB, high-frequency jitter in pixels at ``jitter_width``) in one decode;
+    zoom: np.ndarray | float = 1.0,
+) -> tuple[float, float, float]:
+    """(masked ITF in dB, high-frequency jitter, visible shake) in one decode, both in pixels at
+    ``jitter_width``, the shake with each frame's shift divided by its ``zoom`` ((K,) or scalar);
     ``masks(k)`` gives frame k's content mask (None: all content)."""
     info = probe(video)
     itf = ITFAccumulator()
@@ -102,7 +107,8 @@ def pixel_measures(
     for f in iter_frames(video, gray=True):
         itf.add(f.image, None if masks is None else masks(f.index))
         shifts.add(f.image)
-    return itf.value, high_pass_rms(shifts.path, info.fps, cutoff_hz)
+    path = shifts.path
+    return itf.value, high_pass_rms(path, info.fps, cutoff_hz), shake_rms(unzoomed(path, zoom))
 
 
 def measure_video(
@@ -113,10 +119,12 @@ def measure_video(
     masks: Callable[[int], np.ndarray | None] | None = None,
     model: ViewingModel | None = None,
     anchor_threshold: float = 0.5,
+    zoom: np.ndarray | float = 1.0,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> VideoMeasures:
     """Measure a decoded video: motion (re-estimated unless given as (K, 3) degrees), VE, SVE,
-    pure-FPM VE, 2D-VE, masked ITF and jitter."""
+    pure-FPM VE, 2D-VE, masked ITF, jitter and the visible shake (``zoom``: the video's zoom
+    against its source, per frame or one)."""
     info = probe(video)
     estimated = None
     times = None
@@ -128,5 +136,5 @@ def measure_video(
     scores = motion_scores(motion, info.fps, intr, model=model, anchor_threshold=anchor_threshold, times=times)
     cb = (lambda d, t: progress("measure 2D-VE", d, t)) if progress else None
     ve2d = ve2d_video(video, intr, progress=cb).score
-    itf, jitter = pixel_measures(video, masks)
-    return VideoMeasures(scores.ve, scores.sve, scores.pure_fpm_ve, ve2d, itf, jitter, estimated)
+    itf, jitter, shake = pixel_measures(video, masks, zoom=zoom)
+    return VideoMeasures(scores.ve, scores.sve, scores.pure_fpm_ve, ve2d, itf, jitter, shake, estimated)

@@ -9,11 +9,15 @@ runs it through :func:`egovid.fpv.stabilize.run.stabilize_video`, which resolves
    levelled by default (set to the clip's median roll, so a tilted mount stays as mounted and only
    roll shake goes; ``keep_roll`` treats it like yaw and pitch); ``strength`` blends the original
    and the planned motion (1 = the plan, 0 = untouched);
-3. with ``borders="crop"``, the path nearest that plan that a dynamic zoom of at most
-   ``max_zoom`` covers (:mod:`egovid.fpv.stabilize.path`);
-4. the frames re-rendered along that path, keeping what the camera wrote
+3. with ``horizon_lock``, every view of the plan levelled against gravity (the accelerometer's,
+   else the path's mean down; :mod:`egovid.fpv.stabilize.horizon`);
+4. with ``borders="crop"``, below the plan the visible-shake layer
+   (:mod:`egovid.fpv.stabilize.visible`): the plan low-passed as far as its FPMI allows and bent
+   into what a dynamic zoom of at most ``max_zoom`` covers (:mod:`egovid.fpv.stabilize.path`;
+   ``visible=False``: the path nearest the plan itself, the thesis' stabiliser alone);
+5. the frames re-rendered along that path, keeping what the camera wrote
    (:mod:`egovid.fpv.stabilize.render`);
-5. unless ``measure=False``, the input and the decoded output measured alike
+6. unless ``measure=False``, the input and the decoded output measured alike
    (:mod:`egovid.fpv.stabilize.measure`): VE, SVE, FPMI, 2D-VE, ITF and jitter, beside the same
    scores of the path as planned.
 """
@@ -32,6 +36,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.camera.lens import PINHOLE, Lens
 from egovid.core.errors import EgovidError
 from egovid.core.motion.estimate import estimate_motion
 from egovid.core.motion.source import CameraMotion
@@ -40,10 +45,14 @@ from egovid.core.trajectory import Trajectory
 from egovid.core.video import probe
 from egovid.fpv.perception.model import ViewingModel, from_model_rate, to_model_rate
 from egovid.fpv.perception.score import AXES, check_angles
+from egovid.fpv.stabilize.horizon import down_from_path, lock_horizon
 from egovid.fpv.stabilize.measure import MotionScores, VideoMeasures, measure_video, motion_scores
 from egovid.fpv.stabilize.optimize import AxisPlan, OptimizeOptions, load_kernels, optimize_axis
 from egovid.fpv.stabilize.path import FittedPath, fit_path
 from egovid.fpv.stabilize.render import BORDERS, RenderStats, content_masks, homographies, render_stabilized
+from egovid.fpv.stabilize.render_views import render_views
+from egovid.fpv.stabilize.visible import VisibleTarget, visible_path
+from egovid.fpv.stabilize.warp import FrameView, MeshWarp, required_zoom
 
 
 def _retention(pure_before: float, pure_after: float) -> float:
@@ -74,6 +83,7 @@ class StabilizeResult:
     after: VideoMeasures | None
     render: RenderStats
     fitted: FittedPath | None
+    visible: VisibleTarget | None = None
     seconds: dict[str, float] = field(default_factory=dict)
     params: dict = field(default_factory=dict)
     camera_motion: CameraMotion | None = field(default=None, repr=False)
@@ -90,13 +100,45 @@ class StabilizeResult:
             "black_share": self.render.black_share,
             "kept_from_input": self.render.kept,
             "not_kept": self.render.dropped,
+            "visible_cutoff_hz": self.visible.cutoff_hz if self.visible else None,
             "notes": self.fitted.notes if self.fitted else [],
             "params": self.params,
         }
         if self.before is not None and self.after is not None:
             out["measured"] = {"before": self.before.to_dict(), "after": self.after.to_dict()}
             out["fpmi_retention_measured"] = _retention(self.before.pure_fpm_ve, self.after.pure_fpm_ve)
+        out["warnings"] = self.warnings()
         return out
+
+    def warnings(self) -> list[str]:
+        """What the user should know about the output, each with what to change: the output
+        measured shakier than the input (the visible shake of the decoded pictures)."""
+        return shake_warnings(self.before, self.after, float(np.max(1.0 / self.keep)), self.params)
+
+
+def shake_warnings(
+    before: VideoMeasures | None, after: VideoMeasures | None, zoom_max: float, params: dict
+) -> list[str]:
+    """The warning for an output whose decoded pictures shake more than the input's
+    (``shake_px`` of ``before`` and ``after``), with a suggestion chosen by what limited the run:
+    a zoom at its budget (``zoom_max`` against ``params["max_zoom"]``) wants a larger budget;
+    otherwise the camera model (field of view, lens) or the motion source is the likely cause."""
+    if before is None or after is None or not np.isfinite(before.shake_px) or not np.isfinite(after.shake_px):
+        return []
+    if after.shake_px <= before.shake_px:
+        return []
+    budget = params.get("max_zoom")
+    if budget is not None and zoom_max >= budget - 1e-3:
+        hint = f"the zoom reached its budget ({budget:g}x): try --max-zoom {min(budget + 0.1, 4.0):.2f}"
+    else:
+        hint = (
+            "the warp's camera model may not fit this lens: try --hfov with the camera's field of view, "
+            "or --source vision"
+        )
+    return [
+        f"the output shakes more than the input (visible shake {before.shake_px:.3f} → {after.shake_px:.3f} px "
+        f"at 480 px width); {hint}"
+    ]
 
 
 @contextlib.contextmanager
@@ -197,12 +239,22 @@ def stabilize(
     opts: OptimizeOptions | None = None,
     crf: int = 18,
     measure: bool = True,
+    visible: bool = True,
+    horizon_lock: bool = False,
+    down_world: np.ndarray | None = None,
+    lens: Lens = PINHOLE,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> StabilizeResult:
     """Stabilise ``src`` into ``dst`` keeping the intentional first-person motion.
 
     ``motion`` reuses a previously estimated trajectory (it must have one entry per frame; without
-    it the motion is estimated from the pictures with ``intrinsics``).
+    it the motion is estimated from the pictures with ``intrinsics``). ``visible`` puts the
+    visible-shake layer below the plan (with ``borders="crop"``); ``horizon_lock`` levels every
+    view against ``down_world`` ((3,) the world's down direction in the motion's frame, from an
+    accelerometer), else against the path's mean down axis. ``lens`` is the camera's projection:
+    with a fisheye and ``borders="crop"`` every frame is warped through it (one remap per frame,
+    :class:`~egovid.fpv.stabilize.warp.MeshWarp`) and its zoom raised where that lens needs more
+    than the path programme's pinhole corners said.
     ``progress(stage, done, total)`` is called with stages ``motion``, ``plan``, ``render`` and
     the measuring stages.
     """
@@ -228,26 +280,39 @@ def stabilize(
         opts=opts,
         progress=_stage(progress, "plan"),
     )
-    fitted = None
+    if horizon_lock:
+        plan = lock_horizon(plan, down_world if down_world is not None else down_from_path(angles))
+    fitted = vt = None
     path, keep = plan, np.ones(len(plan))
-    if borders == "crop":
+    if borders == "crop" and visible:
+        fitted, vt = visible_path(
+            angles, plan, intr, fps, max_zoom=max_zoom, model=model, anchor_threshold=opts.anchor_threshold
+        )
+        path, keep = fitted.path, fitted.keep
+    elif borders == "crop":
         fitted = fit_path(angles, plan, intr, fps, max_zoom=max_zoom)
         path, keep = fitted.path, fitted.keep
     t2 = time.perf_counter()
     R_old = matrix_from_euler(angles[:, 0], angles[:, 1], angles[:, 2])
     R_new = matrix_from_euler(path[:, 0], path[:, 1], path[:, 2])
     H = homographies(R_old, R_new, intr)
-    stats = render_stabilized(
-        src,
-        dst,
-        H,
-        keep=keep,
-        borders=borders,
-        R_new=R_new,
-        intrinsics=intr,
-        crf=crf,
-        progress=_stage(progress, "render"),
-    )
+    if borders == "crop" and lens.fisheye:
+        keep, stats = _render_through_lens(src, dst, R_old, R_new, keep, intr, lens, info.rotation, crf, progress)
+        if fitted is not None and np.any(keep < fitted.keep - 1e-9):
+            n = int(np.sum(keep < fitted.keep - 1e-9))
+            fitted.notes.append(f"the fisheye lens needed more zoom than planned on {n} frames")
+    else:
+        stats = render_stabilized(
+            src,
+            dst,
+            H,
+            keep=keep,
+            borders=borders,
+            R_new=R_new,
+            intrinsics=intr,
+            crf=crf,
+            progress=_stage(progress, "render"),
+        )
     t3 = time.perf_counter()
     scores = {"model": model, "anchor_threshold": opts.anchor_threshold}
     planned_before = motion_scores(angles, fps, intr, **scores)
@@ -256,14 +321,40 @@ def stabilize(
     if measure:
         masks = None if borders == "crop" else content_masks(H, keep, intr.width, intr.height)
         before = measure_video(src, intr, motion=angles, **scores, progress=progress)
-        after = measure_video(dst, intr, masks=masks, **scores, progress=progress)
+        after = measure_video(dst, intr, masks=masks, zoom=1.0 / keep, **scores, progress=progress)
     t4 = time.perf_counter()
     params = _params(strength, borders, max_zoom, keep_roll, method, intr, opts, model, crf)
+    params.update(visible=visible and borders == "crop", horizon_lock=horizon_lock)
     seconds = {"motion": t1 - t0, "plan": t2 - t1, "render": t3 - t2, "measure": t4 - t3, "total": t4 - t0}
     return StabilizeResult(
         str(dst), motion.times, angles, plan, path, keep, plans, planned, planned_before, before, after, stats,
-        fitted, seconds, params,
+        fitted, vt, seconds, params,
     )  # fmt: skip
+
+
+def _render_through_lens(
+    src: str | os.PathLike,
+    dst: str | os.PathLike,
+    R_old: np.ndarray,
+    R_new: np.ndarray,
+    keep: np.ndarray,
+    intr: Intrinsics,
+    lens: Lens,
+    rotation: int,
+    crf: int,
+    progress: Callable[[str, int, int], None] | None,
+) -> tuple[np.ndarray, RenderStats]:
+    """Render the crop through ``lens``: each frame's view (orientation ``R_new[k]`` of the frame
+    taken at ``R_old[k]``, zoom ``1/keep[k]``, raised to the least zoom the lens's own projection
+    covers); the keep used and the render's stats."""
+    warp = MeshWarp(intr, rotation, lens=lens)
+    views = [FrameView(R_new[k], R_old[k][None], 1.0) for k in range(len(R_new))]
+    zoom = np.maximum(1.0 / np.asarray(keep, float), required_zoom(warp, views))
+    for v, z in zip(views, zoom, strict=True):
+        v.zoom = float(z)
+    done = render_views(src, dst, views, warp, crf=crf, progress=_stage(progress, "render"))
+    stats = RenderStats(done.frames, 0.0, float(zoom.mean()), float(zoom.max()), done.seconds, done.kept, done.dropped)
+    return 1.0 / zoom, stats
 
 
 def _params(

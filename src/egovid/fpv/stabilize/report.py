@@ -104,6 +104,7 @@ def _scores_rows(s: dict) -> str:
         ("2D-VE (optical flow)", "ve2d", ".3f", False),
         ("ITF (dB, higher = steadier)", "itf_db", ".2f", False),
         ("High-frequency jitter (px at 480 px width, above 3 Hz)", "jitter_px", ".3f", False),
+        ("Visible shake (px at 480 px width, as shake.py: path minus its 15-frame mean)", "shake_px", ".3f", False),
     ]
     cells = [
         (name, pb.get(key) if planned else None, pa.get(key) if planned else None, mb.get(key), ma.get(key), fm)
@@ -128,7 +129,7 @@ def write_report(path: str | os.PathLike, res: StabilizeResult, source: str, int
     params = "".join(f"<li>{html.escape(str(k))}: {html.escape(str(v))}</li>" for k, v in s["params"].items())
     kept = "".join(f"<li>{html.escape(x)}</li>" for x in s["kept_from_input"]) or "<li>nothing to keep</li>"
     dropped = "".join(f"<li>{html.escape(x)}</li>" for x in s["not_kept"])
-    notes = "".join(f"<li>{html.escape(x)}</li>" for x in s["notes"])
+    notes = "".join(f"<li>{html.escape(x)}</li>" for x in [*s.get("warnings", []), *s["notes"]])
     secs = res.seconds
     measured_note = (
         ""

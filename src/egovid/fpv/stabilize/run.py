@@ -10,17 +10,21 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from egovid.core.camera.resolve import resolve_camera
 from egovid.core.errors import EgovidError
 from egovid.core.files import atomic_write_text
-from egovid.core.motion.source import camera_motion
+from egovid.core.motion import gyro as gyro_mod
+from egovid.core.motion.source import CameraMotion, camera_motion
 from egovid.core.trajectory import Trajectory, read_motion_csv, write_motion_csv
 from egovid.core.video import count_frames, probe
+from egovid.fpv.stabilize.horizon import down_from_accelerometer
 from egovid.fpv.stabilize.optimize import OptimizeOptions
 from egovid.fpv.stabilize.pipeline import StabilizeResult, check_options, stabilize
 from egovid.fpv.stabilize.report import write_report
 
-__all__ = ["check_options", "saved_motion_paths", "stabilize_video"]
+__all__ = ["check_options", "gravity_down", "saved_motion_paths", "stabilize_video"]
 
 
 def saved_motion_paths(prefix: str | os.PathLike) -> tuple[Path, Path]:
@@ -46,6 +50,8 @@ def stabilize_video(
     anchor_threshold: float = 0.5,
     crf: int = 18,
     measure: bool = True,
+    visible: bool = True,
+    horizon_lock: bool = False,
     save_motion: str | os.PathLike | None = None,
     json_out: str | os.PathLike | None = None,
     report: str | os.PathLike | None = None,
@@ -56,18 +62,23 @@ def stabilize_video(
     The camera motion comes from ``motion``, a motion CSV or a trajectory (one row per frame,
     with the file's intrinsics or ``focal`` pixels / ``hfov`` degrees), else from ``source`` (see
     :func:`~egovid.core.motion.source.camera_motion`). ``strength``, ``borders``, ``max_zoom``,
-    ``keep_roll``, ``method``, ``anchor_threshold`` (degrees), ``crf`` and ``measure`` go to
-    :func:`~egovid.fpv.stabilize.pipeline.stabilize`. Writes the motion CSVs of
+    ``keep_roll``, ``method``, ``anchor_threshold`` (degrees), ``crf``, ``measure``, ``visible``
+    and ``horizon_lock`` go to :func:`~egovid.fpv.stabilize.pipeline.stabilize`; the horizon is
+    levelled against the accelerometer's gravity where the motion came from a synced gyro that
+    logged one, else against the path's mean down axis. Writes the motion CSVs of
     :func:`saved_motion_paths` (``save_motion``), the deterministic JSON summary (``json_out``) and
-    the HTML report (``report``) when given. ``progress(stage, done, total)`` reports the stages.
+    the HTML report (``report``) when given. Frames are warped through the camera's lens
+    (:attr:`~egovid.core.camera.resolve.CameraModel.lens`: a GoPro's fisheye modes).
+    ``progress(stage, done, total)`` reports the stages.
     """
     fps = probe(src).fps
-    intr = resolve_camera(src, focal, hfov).intrinsics
+    camera = resolve_camera(src, focal, hfov)
     traj = motion if isinstance(motion, Trajectory) or motion is None else _motion_of(src, motion)
     cm = None
     if traj is None:
         cm = camera_motion(src, source, focal=focal, hfov=hfov, progress=progress)
-        traj, intr = cm.trajectory, cm.camera.intrinsics
+        traj, camera = cm.trajectory, cm.camera
+    intr = camera.intrinsics
     res = stabilize(
         src,
         dst,
@@ -81,6 +92,10 @@ def stabilize_video(
         opts=OptimizeOptions(anchor_threshold=anchor_threshold, method=method),
         crf=crf,
         measure=measure,
+        visible=visible,
+        horizon_lock=horizon_lock,
+        down_world=gravity_down(cm) if horizon_lock and cm is not None else None,
+        lens=camera.lens,
         progress=progress,
     )
     res.camera_motion = cm
@@ -93,6 +108,23 @@ def stabilize_video(
     if report is not None:
         write_report(report, res, str(src), intr, fps)
     return res
+
+
+def gravity_down(cm: CameraMotion) -> np.ndarray | None:
+    """(3,) the world's down direction in the frame of ``cm``'s trajectory (frame 0 = identity),
+    from the accelerometer of its synced gyro (:func:`egovid.fpv.stabilize.horizon.down_from_accelerometer`);
+    None without a synced gyro or an accelerometer."""
+    imu = cm.telemetry.imu if cm.telemetry is not None else None
+    if cm.sync is None or imu is None or imu.accel is None or imu.accel_times is None or len(imu.accel) < 2:
+        return None
+    track = gyro_mod.integrate(imu, bias=cm.sync.bias)
+    t_video = np.asarray(imu.accel_times, float) - cm.sync.offset_s
+    inside = (t_video >= cm.trajectory.times[0]) & (t_video <= cm.trajectory.times[-1])
+    if inside.sum() < 2:
+        return None
+    R = gyro_mod.frame_rotations(track, cm.sync, np.concatenate([cm.trajectory.times[:1], t_video[inside]]))[1:]
+    accel_cam = np.asarray(imu.accel, float)[inside] @ cm.sync.axes.T
+    return down_from_accelerometer(R, accel_cam)
 
 
 def _motion_of(src: str | os.PathLike, motion: str | os.PathLike) -> Trajectory:

@@ -29,6 +29,7 @@ import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.fpv.perception.model import ViewingModel
+from egovid.fpv.stabilize.measure import motion_scores
 from egovid.fpv.stabilize.path import FittedPath, PathWeights, fit_path
 
 #: Cutoffs tried (Hz), lowest first.
@@ -79,8 +80,6 @@ def visible_path(
     keeps ``fpmi_floor`` of the plan's FPMI (the crop may not let the path follow the low-passed
     plan: a pan at the clip's end, so the check is on the path, not the target); the plan itself
     with those weights when no cutoff does."""
-    from egovid.fpv.stabilize.measure import motion_scores
-
     w = weights or VISIBLE_WEIGHTS
     kw = {"model": model, "anchor_threshold": anchor_threshold}
     base = 1.0 - motion_scores(plan, fps, intr, **kw).pure_fpm_ve

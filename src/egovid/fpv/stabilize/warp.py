@@ -7,7 +7,9 @@ read: ``p = K R(s)ᵀ R̃_k K⁻¹ Z_k⁻¹ u`` with ``s`` the row's readout pos
 ``s`` depends on ``p`` itself; one fixed-point step from the frame-centre rotation is exact to
 well below a pixel for any real readout (the rotation changes by a fraction of a degree across
 a frame). Where the readout time is 0 every row has the frame's rotation and the map is a
-homography.
+homography. With a fisheye lens (:mod:`egovid.core.camera.lens`) the same holds with the lens's
+own projection in place of ``K`` and ``K⁻¹``: the output keeps the input's projection (a fisheye
+stays a fisheye) and every pixel moves as the rotation really moves it, not as a pinhole would.
 
 The map is computed on a mesh (every ``cell`` pixels, and one cell beyond each edge) and
 interpolated bilinearly to every pixel by ``cv2.resize``; the map is smooth (a homography per
@@ -24,6 +26,7 @@ import cv2
 import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.camera.lens import PINHOLE, Lens, project, unproject
 
 #: Readout direction in display orientation for each rotation flag: the sensor's first row is
 #: the display's top row (0), left column (90), bottom row (180) or right column (270).
@@ -48,11 +51,12 @@ class FrameView:
 
 
 class MeshWarp:
-    """Per-frame remap tables for a video of ``intr`` (display orientation) with rotation flag
-    ``rotation`` (for the readout direction), on a mesh of ``cell`` pixels."""
+    """Per-frame remap tables for a video of ``intr`` (display orientation) through ``lens`` with
+    rotation flag ``rotation`` (for the readout direction), on a mesh of ``cell`` pixels."""
 
-    def __init__(self, intr: Intrinsics, rotation: int = 0, cell: int = 16) -> None:
+    def __init__(self, intr: Intrinsics, rotation: int = 0, cell: int = 16, lens: Lens = PINHOLE) -> None:
         self.intr = intr
+        self.lens = lens
         self.rotation = int(rotation) % 360
         self.w, self.h = intr.width, intr.height
         self._luma = self._mesh(self.w, self.h, cell, 1.0, 0.0)
@@ -82,31 +86,22 @@ class MeshWarp:
 
     def source_points(self, view: FrameView, ux: np.ndarray, uy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Source pixels (luma, display orientation) that output pixels ``(ux, uy)`` show."""
-        K, Ki = self.intr.K, self.intr.K_inv
         cx, cy = (self.w - 1) / 2.0, (self.h - 1) / 2.0
         z = view.zoom
         vx = cx + (ux - cx) / z
         vy = cy + (uy - cy) / z
-        rays = np.stack([vx, vy, np.ones_like(vx)], axis=-1) @ Ki.T
+        rays = unproject(self.lens, self.intr, vx, vy)
         d = rays @ view.R_new.T  # world directions
         B = len(view.R_rows)
         Rc = view.R_rows[B // 2] if B > 1 else view.R_rows[0]
-        p = self._project(d, Rc, K)
+        p = project(self.lens, self.intr, d @ Rc)  # Rᵀ d, row vectors
         if B > 1:
             s = readout_position(p[..., 0], p[..., 1], self.w, self.h, self.rotation)
             idx = np.clip(np.rint(s * (B - 1)).astype(int), 0, B - 1)
             Rs = view.R_rows[idx]  # (..., 3, 3)
             cam = np.einsum("...ji,...j->...i", Rs, d)  # R(s)ᵀ d
-            with np.errstate(divide="ignore", invalid="ignore"):
-                q = cam @ K.T
-                p = np.where(q[..., 2:3] > 1e-9, q[..., :2] / q[..., 2:3], -1e6)
+            p = project(self.lens, self.intr, cam)
         return p[..., 0], p[..., 1]
-
-    @staticmethod
-    def _project(d: np.ndarray, R: np.ndarray, K: np.ndarray) -> np.ndarray:
-        q = (d @ R) @ K.T  # K Rᵀ d, row vectors
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(q[..., 2:3] > 1e-9, q[..., :2] / q[..., 2:3], -1e6)
 
     def _maps(self, view: FrameView, mesh: dict) -> tuple[np.ndarray, np.ndarray]:
         sx, sy = self.source_points(view, mesh["lx"], mesh["ly"])
@@ -128,12 +123,12 @@ class MeshWarp:
 
     def warp_i420(self, img: np.ndarray, view: FrameView, border: tuple[int, int] = (0, 128)) -> np.ndarray:
         """The output I420 picture ((h*3/2, w) uint8) of source picture ``img`` for ``view``. A
-        global-shutter view is one homography: ``cv2.warpPerspective`` (half the time of a
+        global-shutter view through a pinhole lens is one homography: ``cv2.warpPerspective`` (half the time of a
         remap through full-size maps at 1080p, the same map); rows read at their own times go
         through the mesh."""
         w, h = self.w, self.h
         out = np.empty_like(img)
-        if len(view.R_rows) == 1:
+        if len(view.R_rows) == 1 and not self.lens.fisheye:
             Hi = self.inverse_homography(view)
             flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
             out[:h] = cv2.warpPerspective(
@@ -170,6 +165,23 @@ class MeshWarp:
         uy = np.concatenate([np.zeros_like(t), t * (h - 1), np.full_like(t, h - 1), t[::-1] * (h - 1)])
         px, py = self.source_points(view, ux, uy)
         return float(np.max(np.maximum.reduce([-px, -py, px - (w - 1), py - (h - 1)])))
+
+
+def required_zoom(warp: MeshWarp, views: list[FrameView], max_zoom: float = 4.0) -> np.ndarray:
+    """(K,) the least zoom that keeps each view's output frame inside its source (bisection)."""
+    out = np.ones(len(views))
+    for k, v in enumerate(views):
+        if warp.coverage_shortfall(FrameView(v.R_new, v.R_rows, 1.0)) <= 0.0:
+            continue
+        lo, hi = 1.0, max_zoom
+        for _ in range(24):
+            mid = 0.5 * (lo + hi)
+            if warp.coverage_shortfall(FrameView(v.R_new, v.R_rows, mid)) <= 0.0:
+                hi = mid
+            else:
+                lo = mid
+        out[k] = hi
+    return out
 
 
 def rows_at(times: np.ndarray, readout_s: float, bands: int = 1) -> np.ndarray:

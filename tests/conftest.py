@@ -332,12 +332,16 @@ EXIT_GRACE_S = 120.0
 
 
 def pytest_sessionfinish(session, exitstatus) -> None:
-    """A process (the main one or a pytest-xdist worker) still alive ``EXIT_GRACE_S`` seconds after
-    its session finished is waiting on a thread left behind (a server's, a pool's, a client's
-    loop): it says so on stderr and exits with the session's status, instead of holding CI until
-    its time limit with every test already reported."""
+    """The main pytest process still alive ``EXIT_GRACE_S`` seconds after its session finished is
+    waiting on a thread left behind (a server's, a pool's, a client's loop): it says so on stderr
+    and exits with the session's status, instead of holding CI until its time limit with every
+    test already reported. (pytest-xdist workers wait for the controller after their session and
+    are ended by it, with a time limit of its own.)"""
     import threading
     import time
+
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return
 
     def force_exit() -> None:
         time.sleep(EXIT_GRACE_S)

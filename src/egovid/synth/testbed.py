@@ -35,10 +35,13 @@ from pathlib import Path
 import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.camera.telemetry import read_camera_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.rotations import matrix_from_euler
 from egovid.core.trajectory import Trajectory
 from egovid.core.video import VideoWriter
+from egovid.synth.fpv import scene_panorama
+from egovid.synth.render import SphereRenderer
 
 MOTIONS = ("walk", "run", "drive", "pan")
 SHAKES = ("hand", "gyro-hero5", "gyro-hero6", "vibration", "eis-residual")
@@ -183,7 +186,6 @@ def _band(x: np.ndarray, rate: float, band: tuple[float, float]) -> np.ndarray:
 def _gyro_angles(log: str, real_dir: str) -> tuple[np.ndarray, np.ndarray]:
     """(times s, (N, 3) yaw, pitch, roll degrees): the integral of a real clip's gyro, in camera
     axes (GoPro: camera x, y, z = IMU -y, -x, -z, as egovid's sync finds on the HERO5 clip)."""
-    from egovid.core.camera.telemetry import read_camera_telemetry
 
     path = Path(real_dir) / GYRO_LOGS[log]
     if not path.exists():
@@ -322,8 +324,6 @@ def render_case(
 ) -> CaseTruth:
     """Render ``case`` to ``out`` (MP4) and return its truth. Rolling shutter: the sensor rows are
     read in ``bands`` bands, each rendered with the orientation at its own time."""
-    from egovid.synth.fpv import scene_panorama
-    from egovid.synth.render import SphereRenderer
 
     truth = case_truth(case, real_dir)
     intr = case.intrinsics()

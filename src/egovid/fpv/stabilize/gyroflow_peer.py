@@ -36,6 +36,7 @@ from numba import njit
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.camera.lens import PINHOLE, Lens
 from egovid.core.errors import EgovidError
+from egovid.fpv.stabilize.render_views import render_views
 from egovid.fpv.stabilize.warp import FrameView, MeshWarp, required_zoom, rows_at
 
 #: Gyroflow's defaults (Default algorithm, adaptive zoom, zoom limit).
@@ -243,7 +244,6 @@ def run_gyroflow(
     lens: Lens = PINHOLE,
 ) -> float:
     """Render ``plan`` from ``src`` into ``dst``; returns the seconds it took."""
-    from egovid.fpv.stabilize.render_views import render_views
 
     if len(plan.views) == 0:
         raise EgovidError("nothing to render", "give the frames' views")

@@ -300,10 +300,13 @@ class StreamService:
             self.cond.notify_all()
 
     def stats(self) -> dict:
-        """Producers alive, chunks and bytes cached."""
+        """Producers at work (at most ``max_producers``), producers told to stop that have not
+        ended yet (they end at their next frame), chunks and bytes cached."""
         with self.cond:
-            alive = sum(1 for p in self._producers if not p.done)
-        return {"producers": alive, "chunks_cached": len(self.cache), "bytes_cached": self.cache.bytes}
+            working = sum(1 for p in self._producers if not p.done and not p.stop)
+            stopping = sum(1 for p in self._producers if not p.done and p.stop)
+        return {"producers": working, "stopping": stopping, "chunks_cached": len(self.cache),
+                "bytes_cached": self.cache.bytes}  # fmt: skip
 
     def close(self, timeout: float = 5.0) -> None:
         """Stop every producer and wait for them (up to ``timeout`` seconds in all)."""

@@ -53,6 +53,7 @@ import cv2
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.core.metrics.psnr import psnr_db
 from egovid.dashcam.codec import vpx
 from egovid.dashcam.codec.settings import EncoderSettings
 
@@ -489,14 +490,13 @@ class SegmentWriter:
             self.digests.close()
             raise EgovidError("a segment with no frames cannot be encoded")
         recon_digest, run_digests = self.digests.result()
-        mse = self.se / max(self.pix, 1)
-        psnr = 10 * np.log10(255.0**2 / mse) if mse > 0 else 100.0
+        psnr = psnr_db(self.se / max(self.pix, 1))
         sizes = [self.size_of[k] for k in range(self.next)]
         header = pack_header(self.width, self.height, q, self.n_packets, gop, self.refresh, self.starts, codec)
         blob = b"" if self.spool is not None else header + b"".join(map(frame_packet, self.packets))
         offsets = [len(header) + o for o in self.run_body] + [len(header) + self.n_bytes]
         return EncodedSegment(
-            blob, self.next, recon_digest, float(psnr), sizes, run_digests, header, offsets[-1], offsets, self.spool
+            blob, self.next, recon_digest, psnr, sizes, run_digests, header, offsets[-1], offsets, self.spool
         )
 
 

@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.core.metrics.psnr import psnr_db
 from egovid.dashcam.align import ALIGNERS
 from egovid.dashcam.align.illumination import frame_features
 from egovid.dashcam.align.orb import OrbScorer, small_gray, warm_up, wide_window
@@ -382,10 +383,6 @@ def keep_joint(joint: tuple[int, float], alone: tuple[int, float]) -> tuple[bool
     )
 
 
-def _psnr(mse: float) -> float:
-    return 10 * float(np.log10(255.0**2 / mse)) if mse > 0 else 100.0
-
-
 class _Referee:
     """The early choice between a piece's joint and standalone encodes: when both have coded the
     first ``at`` frames (:data:`DECIDE_RUNS` runs), :func:`keep_joint` on those frames, and the
@@ -403,7 +400,7 @@ class _Referee:
             if frames != self.at:
                 return
             with self.lock:
-                self.seen[name] = (nbytes, _psnr(mse))
+                self.seen[name] = (nbytes, psnr_db(mse))
                 if len(self.seen) == 2 and self.loser is None:
                     kept, why = keep_joint(self.seen["joint"], self.seen["standalone"])
                     self.loser = "standalone" if kept else "joint"

@@ -3,27 +3,22 @@
 A clip is an H.264 MP4 (PyAV, libx264) whose every frame is preceded by an SEI NAL unit with one
 ``user_data_unregistered`` message: a run of ``0x42`` bytes, ``0x69``, and a ``SeiMetadata``
 protobuf message (see :mod:`egovid.core.camera.tesla` for the fields), emulation-prevention
-bytes inserted as H.264 requires. The car drives a known path (:class:`TeslaTruth`); a
-``TeslaCam`` folder (``RecentClips``, ``SavedClips/<event>``, ``SentryClips/<event>``, one file per
-camera, ``YYYY-MM-DD_HH-MM-SS-<camera>.mp4``) can be laid out of such clips.
+bytes inserted as H.264 requires. The car drives a known path (:class:`TeslaTruth`).
 """
 
 from __future__ import annotations
 
-import datetime as dt
 import fractions
 import math
 import os
 import struct
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from egovid.core.camera.tesla import CHANNELS, FIELDS
 
 EARTH_R = 6371008.8
-CAMERAS = ("front", "back", "left_repeater", "right_repeater", "left_pillar", "right_pillar")
 
 
 def _varint(v: int) -> bytes:
@@ -163,16 +158,3 @@ def write_tesla_clip(
             mux(v.encode(frame))
         mux(v.encode())
     return truth
-
-
-def write_teslacam(root: str | os.PathLike, start: dt.datetime, *, clips: int = 2, seconds: float = 2.0, **kw) -> Path:
-    """A ``TeslaCam`` folder: ``clips`` consecutive clips per camera (front and back) in
-    ``RecentClips``, stamped ``start`` + ``k * seconds`` (local time in the names, as Tesla writes
-    them); returns the folder."""
-    base = Path(root) / "TeslaCam" / "RecentClips"
-    base.mkdir(parents=True, exist_ok=True)
-    for k in range(clips):
-        stamp = (start + dt.timedelta(seconds=k * seconds)).strftime("%Y-%m-%d_%H-%M-%S")
-        for cam in CAMERAS[:2]:
-            write_tesla_clip(base / f"{stamp}-{cam}.mp4", seconds=seconds, start_seq=1000 + k * 1000, **kw)
-    return base.parent

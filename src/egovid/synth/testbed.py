@@ -28,7 +28,7 @@ stabilised picture has none that describes it).
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
@@ -95,10 +95,6 @@ class Case:
     def has_gyro(self) -> bool:
         """A body gyro that describes the picture (not after in-camera stabilisation)."""
         return self.shake != "eis-residual"
-
-    @property
-    def in_camera_stabilised(self) -> bool:
-        return self.shake == "eis-residual"
 
     def intrinsics(self) -> Intrinsics:
         """Pinhole intrinsics in display orientation (focal length from the long side)."""
@@ -344,16 +340,3 @@ def render_case(
             img = renderer.render(Rb[0]) if n_bands == 1 else renderer.render_rolling(list(Rb))
             w.write(np.ascontiguousarray(np.rot90(img, k_rot)), float(t0))
     return truth
-
-
-def with_seconds(case: Case, seconds: float) -> Case:
-    """The same case, shorter or longer (for fast tests)."""
-    return replace(case, seconds=seconds)
-
-
-def frame_shift_truth(truth: CaseTruth) -> np.ndarray:
-    """(K, 2) image path (pixels, display orientation) the true motion moves the centre by: small
-    angle, ``f · angle`` (yaw -> x, pitch -> y); for tests of pixel measures."""
-    f = truth.case.intrinsics().focal
-    a = np.radians(truth.angles)
-    return np.stack([f * np.tan(a[:, 0]), -f * np.tan(a[:, 1])], axis=1)

@@ -68,3 +68,32 @@ def test_motion_bad_input_is_one_line_and_nonzero(tmp_path, make, extra, needle)
     lines = [ln for ln in r.stderr.splitlines() if ln.startswith("error:")]
     assert len(lines) == 1 and re.search(needle, lines[0]), r.stderr
     assert not (tmp_path / "m.csv").exists()
+
+
+def test_ingest_leaves_its_coding_defaults_to_the_library_and_its_help_shows_the_library_s(monkeypatch):
+    """``--q``, ``--gop`` and ``--random-access`` default to None (IngestOptions fills them in, its
+    one copy); ``ingest --help`` shows the values IngestOptions has, whatever they are."""
+    import types
+
+    from click.testing import CliRunner
+
+    from egovid.cli import command
+    from egovid.dashcam.ingest import options
+
+    ingest = command().commands["dashcam"].commands["ingest"]
+    params = {p.name: p for p in ingest.params}
+    assert [params[n].default for n in ("q", "gop", "random_access")] == [None] * 3
+    assert options.IngestOptions.from_preset(None, q=None, gop=None, refresh=None) == options.IngestOptions()
+
+    def shown(defaults) -> dict[str, str]:
+        monkeypatch.setattr(options, "IngestOptions", lambda: defaults)
+        out = CliRunner().invoke(command(), ["dashcam", "ingest", "--help"], env={"COLUMNS": "200"}).output
+        found = {}
+        for name in ("--q", "--gop", "--random-access"):
+            after = out[out.index(f"│ {name} ") :]
+            found[name] = re.search(r"\[default: (\S+)\]", after).group(1)
+        return found
+
+    assert shown(options.IngestOptions()) == {"--q": "32", "--gop": "8", "--random-access": "24"}
+    assert shown(types.SimpleNamespace(q=41, gop=5, refresh=17)) == {"--q": "41", "--gop": "5", "--random-access": "17"}
+    assert all(params[n].default is None for n in ("q", "gop", "random_access"))  # the help changed nothing

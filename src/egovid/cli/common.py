@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import contextlib
+import copy
 import functools
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import typer
+import typer.core
 from rich.console import Console
 from rich.progress import (
     BarColumn,
@@ -29,6 +31,27 @@ ALLOW_TRUNCATED = typer.Option(
     help="Process a truncated video (cut short while recording or copying): only the frames really "
     "in the file. Without it such a file is refused, naming how many frames it holds.",
 )
+
+
+def library_defaults(shown: Callable[[], dict[str, object]]) -> type[typer.core.TyperCommand]:
+    """The Typer command class of a command whose options default to None so that the library fills
+    them in (its one copy of the defaults): ``--help`` shows ``shown()``'s values (parameter name →
+    value) as those options' defaults. ``shown`` is called only when the help is shown, so the
+    command line still starts without importing the library."""
+
+    class Command(typer.core.TyperCommand):
+        def format_help(self, ctx, formatter) -> None:
+            values, params = shown(), self.params
+            self.params = [copy.copy(p) for p in params]
+            for p in self.params:
+                if p.name in values:
+                    p.default = values[p.name]
+            try:
+                super().format_help(ctx, formatter)
+            finally:
+                self.params = params
+
+    return Command
 
 
 def all_or_nothing(command: Callable) -> Callable:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from egovid.cli.common import all_or_nothing, check_output, console, err_console, staged_progress
+from egovid.cli.common import all_or_nothing, check_output, console, err_console, library_defaults, staged_progress
 
 app = typer.Typer(
     help="Route-aware dashcam archive: drives on the same path are compressed against each other.",
@@ -54,7 +54,15 @@ def init(
     console.print(f"archive {archive} created (catalogue: {ar.where}; blobs: {ar.blobs.url}; codec: {describe()})")
 
 
-@app.command("ingest")
+def _ingest_defaults() -> dict[str, object]:
+    """The defaults ``ingest --help`` shows for the options it leaves to the library."""
+    from egovid.dashcam.ingest.options import IngestOptions
+
+    d = IngestOptions()
+    return {"q": d.q, "gop": d.gop, "random_access": d.refresh}
+
+
+@app.command("ingest", cls=library_defaults(_ingest_defaults))
 def ingest(
     archive: Path = typer.Argument(..., help="Archive folder (from `egovid dashcam init`)."),
     videos: list[Path] = typer.Argument(
@@ -97,7 +105,7 @@ def ingest(
         "spacing (BD-rate, PSNR-Y) and 29-32 % smaller than libvpx VP9 realtime. The options below override it.",
     ),
     q: int = typer.Option(
-        32,
+        None,
         min=0,
         max=63,
         help="Quantiser on libvpx's 0-63 scale (0 = best quality, 63 = smallest): VP9 pieces at q, AV1 pieces at "
@@ -117,14 +125,14 @@ def ingest(
         None, min=1, max=64, help="Encoder threads, libvpx's and SVT-AV1's (default: the preset's)."
     ),
     gop: int = typer.Option(
-        8,
+        None,
         min=1,
         max=64,
         help="Anchor spacing in frames: every GOP-th frame is coded first and the frames between "
         "refer to it (and to the older drive) at a coarser quantiser (+12). 1 = low delay.",
     ),
     random_access: int = typer.Option(
-        24,
+        None,
         min=0,
         max=65535,
         help="Random-access period in frames: decoding can begin at every N-th frame (a keyframe "

@@ -146,13 +146,9 @@ class IngestOptions:
 
     def check(self) -> IngestOptions:
         """Raise :class:`EgovidError` for settings that cannot work (before any work starts)."""
-        if not 0 <= self.q <= 63:
-            raise EgovidError(f"quantiser {self.q} is outside 0-63", "use e.g. --q 32")
-        if not 0 <= self.speed <= 9:
-            raise EgovidError(f"--speed {self.speed} is outside 0-9", "use e.g. 5")
+        self.encoder_settings(30.0)  # EncoderSettings checks the ranges: q, speed, gop, random access, ...
         if self.codec not in CODECS:
             raise EgovidError(f"unknown codec {self.codec!r}", f"choose one of {', '.join(CODECS)}")
-        self.encoder_settings(30.0)  # checks gop and the random-access period
         self.standalone_settings(30.0)
         if self.aligner not in ALIGNERS:
             raise EgovidError(f"unknown aligner {self.aligner!r}", f"choose one of {', '.join(ALIGNERS)}")

@@ -72,6 +72,15 @@ START_KEY, START_BASELINE, START_BASELINE_HELD = 0, 1, 2
 #: (``rc.frames_since_golden == 0``, as after every keyframe), so without it the run's first frame
 #: could not use the injected baseline and came out intra-coded.
 DUMMIES = {START_KEY: 0, START_BASELINE: 1, START_BASELINE_HELD: 2}
+_KEY_OR_BASELINE = (START_KEY, START_BASELINE)
+#: The blobs a codec writes, by header version: the run starts each may hold (a version not listed
+#: is refused). VP9: every version (1-2 without a run layout, 4 with held baselines); AV1
+#: (SVT-AV1): version 3, keyframe runs only; libaom: version 3 with keyframe runs, 4 with joint ones.
+RUN_STARTS = {
+    "vp9": {1: _KEY_OR_BASELINE, 2: _KEY_OR_BASELINE, 3: _KEY_OR_BASELINE, 4: (*_KEY_OR_BASELINE, START_BASELINE_HELD)},
+    "av1": {3: (START_KEY,)},
+    "aom": {3: (START_KEY,), 4: (START_KEY, START_BASELINE_HELD)},
+}
 
 
 @dataclass
@@ -205,9 +214,8 @@ def parse_header(buf: bytes) -> tuple[SegmentLayout, int]:
         raise _damaged()
     magic, version, w, h, _pw, _ph, n, q, gop = _HEADER.unpack_from(buf, 0)
     codec = next((name for name, m in MAGICS.items() if m == magic), None)
-    # an AV1 blob: version 3's layout, keyframe runs; a libaom blob: 3, or 4 with joint runs
-    versions = {"vp9": (1, 2, 3, 4), "aom": (3, 4)}.get(codec, (3,))
-    if codec is None or version not in versions or (version == 1 and gop != 0) or (version > 1 and gop < 1):
+    allowed = RUN_STARTS.get(codec, {}).get(version)
+    if allowed is None or (version == 1 and gop != 0) or (version > 1 and gop < 1):
         raise EgovidError("segment blob has an unknown format", "the archive is damaged or from another version")
     gop = max(gop, 1)
     off = _HEADER.size
@@ -222,11 +230,6 @@ def parse_header(buf: bytes) -> tuple[SegmentLayout, int]:
         starts = tuple(buf[off : off + runs])
         off += runs
     lay = SegmentLayout(w, h, q, gop, refresh, starts, n, codec)
-    allowed = (START_KEY, START_BASELINE, START_BASELINE_HELD) if version >= 4 else (START_KEY, START_BASELINE)
-    if codec == "av1" or (codec == "aom" and version < 4):
-        allowed = (START_KEY,)
-    elif codec == "aom":
-        allowed = (START_KEY, START_BASELINE_HELD)
     if any(s not in allowed for s in starts) or len(starts) != len(substreams(lay.frames, refresh)):
         raise _damaged("has an inconsistent layout")
     return lay, off

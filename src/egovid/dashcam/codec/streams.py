@@ -64,6 +64,63 @@ def _unmuxable(path, index: int) -> str | None:
         return None if muxable(s, "mp4", pkt) else "the MP4 muxer cannot carry it"
 
 
+def _outputs_of_first(
+    c: av.container.InputContainer, path, out, info: StreamsInfo, kbps_per_channel: int
+) -> tuple[dict[int, av.stream.Stream], av.stream.Stream | None, av.AudioResampler | None]:
+    """The output streams of a drive's tracks, from its first file ``c`` (at ``path``): one per
+    data or subtitle track the MP4 muxer can carry (by the track's index; the others named in
+    ``info.skipped``), and an Opus stream with its resampler for the first audio track
+    (described in ``info.audio``), or None."""
+    data_out = {}
+    for s in c.streams:
+        if s.type not in ("data", "subtitle"):
+            continue
+        why = _unmuxable(path, s.index)
+        if why:
+            info.skipped.append(f"track {s.index} ({s.metadata.get('handler_name', '').strip()}): {why}")
+        else:
+            data_out[s.index] = out.add_stream_from_template(s)
+    if not c.streams.audio:
+        return data_out, None, None
+    a = c.streams.audio[0]
+    channels = max(1, min(2, a.codec_context.channels or 1))
+    layout = "stereo" if channels == 2 else "mono"
+    audio_out = out.add_stream("libopus", rate=OPUS_RATE, layout=layout)
+    audio_out.bit_rate = kbps_per_channel * 1000 * channels
+    resampler = av.AudioResampler(format="s16", layout=layout, rate=OPUS_RATE)
+    info.audio = {
+        "codec": "opus",
+        "source_codec": a.codec_context.name,
+        "channels": channels,
+        "bit_rate": audio_out.bit_rate,
+        "sample_rate": OPUS_RATE,
+    }
+    return data_out, audio_out, resampler
+
+
+def _copy_track(c, s, dst, offset: float, duration: float, v0: float, out, last_pts: dict[int, int]) -> int:
+    """Copy the packets of track ``s`` of file ``c`` to ``dst``, moved onto the drive's media clock
+    (the file's first frame, at ``v0`` s on its own clock, lands at ``offset`` s; packets from
+    ``offset + duration`` on and any not after the track's last one, ``last_pts``, are left out);
+    returns how many were copied."""
+    c.seek(0)
+    shift = round((offset - v0) / s.time_base) if s.time_base else 0
+    end = round((offset + duration) / s.time_base) if s.time_base else None
+    copied = 0
+    for pkt in c.demux(s):
+        if pkt.size == 0 or pkt.pts is None:
+            continue
+        pts = pkt.pts + shift
+        if pts <= last_pts.get(s.index, -(2**62)) or (end is not None and pts >= end):
+            continue
+        pkt.pts = pkt.dts = pts
+        pkt.stream = dst
+        out.mux(pkt)
+        last_pts[s.index] = pts
+        copied += 1
+    return copied
+
+
 def archive_streams(
     parts: Sequence[tuple[str | os.PathLike, float, float]], *, kbps_per_channel: int = 32
 ) -> tuple[bytes | None, StreamsInfo]:
@@ -84,52 +141,15 @@ def archive_streams(
             with av.open(str(path)) as c:
                 v0 = _video_start(c)
                 if k == 0:
-                    for s in c.streams:
-                        if s.type not in ("data", "subtitle"):
-                            continue
-                        why = _unmuxable(path, s.index)
-                        if why:
-                            info.skipped.append(
-                                f"track {s.index} ({s.metadata.get('handler_name', '').strip()}): {why}"
-                            )
-                        else:
-                            data_out[s.index] = out.add_stream_from_template(s)
-                    if c.streams.audio:
-                        a = c.streams.audio[0]
-                        channels = max(1, min(2, a.codec_context.channels or 1))
-                        layout = "stereo" if channels == 2 else "mono"
-                        audio_out = out.add_stream("libopus", rate=OPUS_RATE, layout=layout)
-                        audio_out.bit_rate = kbps_per_channel * 1000 * channels
-                        resampler = av.AudioResampler(format="s16", layout=layout, rate=OPUS_RATE)
-                        info.audio = {
-                            "codec": "opus",
-                            "source_codec": a.codec_context.name,
-                            "channels": channels,
-                            "bit_rate": audio_out.bit_rate,
-                            "sample_rate": OPUS_RATE,
-                        }
+                    data_out, audio_out, resampler = _outputs_of_first(c, path, out, info, kbps_per_channel)
                 if audio_out is not None and c.streams.audio:
                     written = _encode_audio(c, v0, offset, duration, resampler, audio_out, out, written)
                 elif audio_out is not None:  # a part without audio: silence keeps the rest in step
                     written = _silence_to(round((offset + duration) * OPUS_RATE), written, audio_out, out)
                 for s in c.streams:
-                    if s.index not in data_out:
-                        continue
-                    c.seek(0)
-                    dst = data_out[s.index]
-                    shift = round((offset - v0) / s.time_base) if s.time_base else 0
-                    end = round((offset + duration) / s.time_base) if s.time_base else None
-                    for pkt in c.demux(s):
-                        if pkt.size == 0 or pkt.pts is None:
-                            continue
-                        pts = pkt.pts + shift
-                        if pts <= last_pts.get(s.index, -(2**62)) or (end is not None and pts >= end):
-                            continue
-                        pkt.pts = pkt.dts = pts
-                        pkt.stream = dst
-                        out.mux(pkt)
-                        last_pts[s.index] = pts
-                        counts[s.index] = counts.get(s.index, 0) + 1
+                    if s.index in data_out:
+                        copied = _copy_track(c, s, data_out[s.index], offset, duration, v0, out, last_pts)
+                        counts[s.index] = counts.get(s.index, 0) + copied
         if audio_out is not None:
             for p in audio_out.encode(None):
                 out.mux(p)

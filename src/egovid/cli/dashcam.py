@@ -55,11 +55,12 @@ def init(
 
 
 def _ingest_defaults() -> dict[str, object]:
-    """The defaults ``ingest --help`` shows for the options it leaves to the library."""
-    from egovid.dashcam.ingest.options import IngestOptions
+    """The defaults ``ingest --help`` shows for the options it leaves to the library (IngestOptions'
+    own, from a module light enough not to load OpenCV for a help text)."""
+    from egovid.dashcam.codec import settings
 
-    d = IngestOptions()
-    return {"q": d.q, "gop": d.gop, "random_access": d.refresh}
+    d = settings.ARCHIVE_DEFAULTS
+    return {"q": d["q"], "gop": d["gop"], "random_access": d["refresh"]}
 
 
 @app.command("ingest", cls=library_defaults(_ingest_defaults))

@@ -12,6 +12,12 @@ from egovid.core.errors import EgovidError
 #: all; libaom's good-quality mode stops at 9 and codes 7-9 as 6, its realtime mode goes to 10).
 SPEEDS = {"vp9": (0, 9), "av1": (0, 13), "aom": (0, 10)}
 
+#: The archive's coding defaults, their one copy: :class:`~egovid.dashcam.ingest.options.IngestOptions`
+#: takes them, and ``egovid dashcam ingest --help`` shows them without importing the ingest (OpenCV,
+#: SciPy): quantiser ``q`` (libvpx's 0-63 scale), VP9 anchor spacing ``gop`` and random-access
+#: period ``refresh``, in frames (the thesis' 3D-HEVC configuration: GOP 8, intra period 24).
+ARCHIVE_DEFAULTS = {"q": 32, "gop": 8, "refresh": 24}
+
 
 @dataclass(frozen=True)
 class EncoderSettings:

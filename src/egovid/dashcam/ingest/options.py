@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from egovid.core.errors import EgovidError
 from egovid.dashcam.align import ALIGNERS
-from egovid.dashcam.codec.settings import EncoderSettings
+from egovid.dashcam.codec.settings import ARCHIVE_DEFAULTS, EncoderSettings
 
 BASELINE_ALIGN = ("none", "gain", "similarity")
 CODECS = ("av1", "vp9")  # what standalone pieces can be stored in
@@ -113,13 +113,13 @@ class IngestOptions:
     ``preset``: the name of the preset these came from (recorded with each segment).
     """
 
-    q: int = 32
+    q: int = ARCHIVE_DEFAULTS["q"]
     codec: str = _D["codec"]
     av1_speed: int = _D["av1_speed"]
     speed: int = _D["speed"]
     realtime: bool = _D["realtime"]
-    gop: int = 8
-    refresh: int = 24
+    gop: int = ARCHIVE_DEFAULTS["gop"]
+    refresh: int = ARCHIVE_DEFAULTS["refresh"]
     aligner: str = "orb"
     baseline_align: str = "none"
     measure_savings: bool = False

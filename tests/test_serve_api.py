@@ -11,6 +11,7 @@ import fcntl
 import io
 import os
 import shutil
+import socket
 import time
 from pathlib import Path
 
@@ -467,6 +468,14 @@ def test_serve_cli_refuses_bad_input(serve_archive, tmp_path):
     assert_one_error(run_cli("serve", tmp_path), "not an egovid archive")
     assert_one_error(run_cli("serve", serve_archive, "--token", "short"), "16 characters")
     assert_one_error(run_cli("serve", serve_archive, "--fpv", tmp_path / "none"), "report folder")
+    assert_one_error(run_cli("serve", serve_archive, "--port", "99999"), "not a port")
+    assert_one_error(run_cli("serve", serve_archive, "--host", "192.0.2.1", "--port", "0"), "not an address of this")
+    assert_one_error(run_cli("serve", serve_archive, "--tiles", "ftp://tiles.example/x.png"), "not osm, none or a tile")
+    with socket.socket() as taken:  # a port another program listens on
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert_one_error(run_cli("serve", serve_archive, "--port", port), f"cannot listen on 127.0.0.1:{port}")
 
 
 def test_an_archive_on_postgresql_serves_the_same(serve_archive, pg_url, tmp_path):

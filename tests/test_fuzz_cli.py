@@ -341,6 +341,8 @@ CASES: list[tuple[str, str, str]] = [
     ("serve-port-words", "serve arc --port eighty", "--port"),
     ("serve-host-elsewhere", "serve arc --host 192.0.2.1 --port 0", "not an address of this machine"),
     ("serve-tiles-bogus", "serve arc --tiles bogus", "tile url"),
+    ("serve-tiles-ftp", "serve arc --tiles ftp://tiles.example/{z}/{x}/{y}.png", "tile url"),
+    ("serve-port-absurd", "serve arc --port 99999", "not a port"),
     ("serve-cache-tiny", "serve arc --cache-mb 1", "cache-mb"),
     ("top-unknown-command", "stabilise clip.mp4", "stabilise"),
 ]

@@ -335,6 +335,15 @@ CASES: list[tuple[str, str, str]] = [
     ("serve-port", "serve arc --port 70000", "not a port"),
     ("serve-token-short", "serve arc --token abc", "16 characters"),
     ("serve-report-missing", "serve arc --voeval nothere", "report folder"),
+    ("serve-missing-archive", "serve nosuch", "not found"),
+    ("serve-archive-is-file", "serve clip.mp4", "not a folder"),
+    ("serve-port-negative", "serve arc --port -1", "not a port"),
+    ("serve-port-words", "serve arc --port eighty", "--port"),
+    ("serve-host-elsewhere", "serve arc --host 192.0.2.1 --port 0", "not an address of this machine"),
+    ("serve-tiles-bogus", "serve arc --tiles bogus", "tile url"),
+    ("serve-tiles-ftp", "serve arc --tiles ftp://tiles.example/{z}/{x}/{y}.png", "tile url"),
+    ("serve-port-absurd", "serve arc --port 99999", "not a port"),
+    ("serve-cache-tiny", "serve arc --cache-mb 1", "cache-mb"),
     ("top-unknown-command", "stabilise clip.mp4", "stabilise"),
 ]
 

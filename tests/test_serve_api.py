@@ -11,6 +11,7 @@ import fcntl
 import io
 import os
 import shutil
+import socket
 import time
 from pathlib import Path
 
@@ -467,6 +468,12 @@ def test_serve_cli_refuses_bad_input(serve_archive, tmp_path):
     assert_one_error(run_cli("serve", tmp_path), "not an egovid archive")
     assert_one_error(run_cli("serve", serve_archive, "--token", "short"), "16 characters")
     assert_one_error(run_cli("serve", serve_archive, "--fpv", tmp_path / "none"), "report folder")
+    # (absurd ports, foreign addresses, bad --tiles: tests/test_fuzz_cli.py, in process)
+    with socket.socket() as taken:  # a port another program listens on
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert_one_error(run_cli("serve", serve_archive, "--port", port), f"cannot listen on 127.0.0.1:{port}")
 
 
 def test_an_archive_on_postgresql_serves_the_same(serve_archive, pg_url, tmp_path):
@@ -483,3 +490,40 @@ def test_an_archive_on_postgresql_serves_the_same(serve_archive, pg_url, tmp_pat
             got = list(pool.map(lambda k: c.get(f"/api/drives/{d['id']}/chunks/{k}.mp4"), range(3)))
         assert all(g.status_code == 200 and len(_decode(g.content)) > 0 for g in got)
         assert len(c.get(f"/api/drives/{d['id']}/track").json()["t"]) > 2
+
+
+def test_an_archive_with_blobs_on_s3_plays(serve_archive, s3_server, tmp_path, monkeypatch):
+    """Blobs in an S3 bucket (seaweedfs), none on disk: the joint drive's chunk decodes, through
+    its reference drive's bitstream fetched from the bucket too, to the frames `dashcam extract`
+    gives for that stretch."""
+    import s3fs
+
+    backup = tmp_path / "catalogue.backup"
+    assert run_cli("dashcam", "backup", serve_archive, backup).returncode == 0
+    root = tmp_path / "s3-archive"
+    r = run_cli("dashcam", "init", root, "--blobs", "s3://egovid/serve", env=s3_server)
+    assert r.returncode == 0, r.stderr
+    assert run_cli("dashcam", "restore", backup, root, env=s3_server).returncode == 0
+    fs = s3fs.S3FileSystem(
+        key=s3_server["AWS_ACCESS_KEY_ID"],
+        secret=s3_server["AWS_SECRET_ACCESS_KEY"],
+        client_kwargs={"endpoint_url": s3_server["AWS_ENDPOINT_URL"]},
+        skip_instance_cache=True,
+    )
+    local = serve_archive / "blobs"
+    for p in (p for p in local.rglob("*") if p.is_file()):
+        fs.put_file(str(p), f"egovid/serve/{p.relative_to(local)}")
+    assert not any(p.is_file() for p in (root / "blobs").rglob("*"))  # nothing on disk to fall back on
+    for k, v in s3_server.items():
+        monkeypatch.setenv(k, v)
+    truth = [f.image for f in iter_frames(serve_archive.parent / "tuesday.mkv", i420=True)]
+    with _client(root) as c:
+        did = _ids(c)["tuesday"]
+        m = c.get(f"/api/drives/{did}/stream").json()
+        k = 1
+        r = c.get(f"/api/drives/{did}/chunks/{k}.mp4")
+        assert r.status_code == 200, r.text
+        frames = _decode(r.content)
+        want = truth[k * m["chunk_frames"] : (k + 1) * m["chunk_frames"]]
+        assert len(frames) == len(want) == min(m["chunk_frames"], m["frames"] - k * m["chunk_frames"]) > 0
+        assert min(_psnr(a, b) for a, b in zip(want, frames, strict=True)) > 30

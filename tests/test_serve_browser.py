@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import av
+import numpy as np
 import pytest
 
 from test_serve_api import copy_archive, serve_archive  # noqa: F401 - the shared test archive
@@ -188,3 +189,197 @@ def test_read_only_hides_changes_and_token_guards_the_page(browser, serve_archiv
         wait_js(page, "video.currentTime > 0.3", "monday to play")
         assert not page.locator("#forget").is_visible() and not page.locator("#lock").is_visible()
         assert page.locator("#clip").is_visible()
+
+
+def _gpx_fixes(path: Path) -> list[tuple[float, float, float]]:
+    """(UTC seconds, lat, lon) of every fix of a GPX file, read with the standard library only."""
+    import xml.etree.ElementTree as ET
+
+    from egovid.core.times import iso_to_utc
+
+    out = []
+    for pt in ET.parse(path).getroot().iter():
+        if pt.tag.endswith("trkpt"):
+            when = next(c.text for c in pt if c.tag.endswith("time"))
+            out.append((iso_to_utc(when), float(pt.get("lat")), float(pt.get("lon"))))
+    return out
+
+
+def _metres(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
+    """Great-circle distance (haversine, mean earth radius)."""
+    import math
+
+    p1, p2 = math.radians(lat1), math.radians(lat2)
+    a = math.sin((p2 - p1) / 2) ** 2 + math.cos(p1) * math.cos(p2) * math.sin(math.radians(lon2 - lon1) / 2) ** 2
+    return 2 * 6371008.8 * math.asin(math.sqrt(a))
+
+
+def _expected(fixes: dict, q: dict) -> set[str]:
+    """The drives with a GPS fix (as recorded in their GPX files) inside the query's circle or box
+    and time range: the independent truth for what the page lists."""
+    from egovid.core.times import iso_to_utc
+
+    t_from = iso_to_utc(q["from"]) if "from" in q else -1e18
+    t_to = iso_to_utc(q["to"]) if "to" in q else 1e18
+    near = [float(v) for v in q["near"].split(",")] if "near" in q else None
+    bbox = [float(v) for v in q["bbox"].split(",")] if "bbox" in q else None
+    hit = set()
+    for name, pts in fixes.items():
+        for t, lat, lon in pts:
+            if not t_from <= t <= t_to:
+                continue
+            if near is not None and _metres(lat, lon, *near) > float(q["radius"]):
+                continue
+            if bbox is not None and not (bbox[0] <= lon <= bbox[2] and bbox[1] <= lat <= bbox[3]):
+                continue
+            hit.add(name)
+    return hit
+
+
+def test_find_by_drawing_and_lock_in_chromium(browser, serve_archive, tmp_path):  # noqa: F811
+    """Find: a box and a circle dragged on the map with a time range list the drives whose GPS
+    fixes (their GPX files) fall inside, the same stretches as the library's search; lock and
+    unlock from the page change the catalogue (read back through the library)."""
+    from urllib.parse import parse_qsl, urlsplit
+
+    from egovid.core.times import iso_to_utc
+    from egovid.dashcam.archive.fleetstore import FleetStore
+    from egovid.dashcam.archive.store import open_archive
+    from egovid.dashcam.find import Query, search
+
+    root = copy_archive(serve_archive, tmp_path)
+    fixes = {name: _gpx_fixes(serve_archive.parent / f"{name}.gpx") for name in ("monday", "tuesday")}
+    with egovid_serve(root, tmp_path / "serve.log") as (url, proc):
+        page = browser.new_page()
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(url)
+        wait_js(page, "document.body.dataset.ready === '1'", "the drive list")
+        mbox = page.locator("#map").bounding_box()
+        size = page.evaluate("egovid.map.getSize()")
+        pts = [page.evaluate(f"egovid.map.latLngToContainerPoint([{lat}, {lon}])")
+               for p in fixes.values() for _, lat, lon in p]  # fmt: skip
+        xs, ys = [p["x"] for p in pts], [p["y"] for p in pts]
+
+        def find(tool: str, a: tuple[float, float], b: tuple[float, float], t_from: str = "", t_to: str = ""):
+            """Drag ``tool`` on the map from container point a to b with the time range; returns the
+            query the page sent and the drive names it lists."""
+            page.click("#find-clear")
+            page.fill("#find-from", t_from)
+            page.fill("#find-to", t_to)
+            page.click(f"#find-{tool}")
+            page.mouse.move(mbox["x"] + a[0], mbox["y"] + a[1])
+            with page.expect_response(lambda r: "/api/find?" in r.url) as resp:
+                page.mouse.down()
+                page.mouse.move(mbox["x"] + b[0], mbox["y"] + b[1], steps=6)
+                page.mouse.up()
+            assert resp.value.status == 200, resp.value.text()
+            q = dict(parse_qsl(urlsplit(resp.value.url).query))
+            n = len(resp.value.json())
+            wait_js(page, f"document.getElementById('find-what').textContent === '{n} stretch(es)'", "the stretches")
+            assert page.evaluate("egovid.S.findLayer.getLayers().length") == n  # one mark each on the map
+            return q, page.locator("#found li b").all_inner_texts()
+
+        def library(q: dict) -> list[str]:
+            near = tuple(float(v) for v in q["near"].split(",")) if "near" in q else None
+            bbox = tuple(float(v) for v in q["bbox"].split(",")) if "bbox" in q else None
+            ar = open_archive(root)
+            try:
+                got = search(ar, Query(near=near, radius=float(q.get("radius", 50)), bbox=bbox,
+                                       t_from=iso_to_utc(q["from"]) if "from" in q else None,
+                                       t_to=iso_to_utc(q["to"]) if "to" in q else None))  # fmt: skip
+            finally:
+                ar.close()
+            return [s.drive for s in got]
+
+        # A box around every fix, from tuesday's day on: tuesday alone.
+        pad = 12
+        q, listed = find("box", (min(xs) - pad, min(ys) - pad), (max(xs) + pad, max(ys) + pad), "2026-05-05T00:00")
+        assert set(q) == {"bbox", "from"} and q["from"] == "2026-05-05T00:00:00Z"
+        west, south, east, north = map(float, q["bbox"].split(","))
+        sw = page.evaluate(f"egovid.map.containerPointToLatLng([{min(xs) - pad}, {max(ys) + pad}])")
+        ne = page.evaluate(f"egovid.map.containerPointToLatLng([{max(xs) + pad}, {min(ys) - pad}])")
+        assert np.allclose([west, south, east, north], [sw["lng"], sw["lat"], ne["lng"], ne["lat"]], atol=1e-6)
+        assert _expected(fixes, q) == {"tuesday"} and listed == library(q) and set(listed) == {"tuesday"}, listed
+
+        # A circle centred beside the middle of the track (off the line, which has click handlers
+        # of its own), reaching over it, until tuesday's day: monday alone.
+        mid = len(fixes["monday"]) // 2
+        _, lat, lon = fixes["monday"][mid]
+        c = page.evaluate(f"egovid.map.latLngToContainerPoint([{lat}, {lon}])")
+        centre = (c["x"] + 10, c["y"] - 10)
+        q, listed = find("circle", centre, (centre[0] + 40, centre[1]), "", "2026-05-05T00:00")
+        assert set(q) == {"near", "radius", "to"}
+        lat, lon = map(float, q["near"].split(","))
+        drawn = page.evaluate(f"egovid.map.containerPointToLatLng([{centre[0]}, {centre[1]}])")
+        assert abs(drawn["lat"] - lat) < 1e-6 and abs(drawn["lng"] - lon) < 1e-6
+        assert _expected(fixes, q) == {"monday"} and listed == library(q) and set(listed) == {"monday"}, listed
+
+        # A small circle where the map is farthest from every fix (right of Leaflet's zoom and scale
+        # controls), any time: nothing.
+        spots = [(x, y) for x in (size["x"] / 2, size["x"] - 50) for y in (50, size["y"] - 50)]
+        far = max(spots, key=lambda p: min((p[0] - x) ** 2 + (p[1] - y) ** 2 for x, y in zip(xs, ys, strict=True)))
+        q, listed = find("circle", far, (far[0] + 15, far[1]))
+        assert _expected(fixes, q) == set() and library(q) == [] and listed == []
+
+        # Lock monday with a note from the page, then unlock it: the catalogue says so each time.
+        def lock_state() -> tuple[bool, str | None]:
+            ar = open_archive(root)
+            try:
+                fleet = FleetStore(ar.catalogue)
+                (d,) = [d for d in fleet.live_drives() if d.name == "monday"]
+                meta = fleet.meta(d.id)
+                return meta.locked, meta.lock_note
+            finally:
+                ar.close()
+
+        assert lock_state() == (False, None)
+        page.click("#drives li:has-text('monday')")
+        page.fill("#lock-note", "near miss at the junction")
+        page.click("#lock")
+        # (the status line says so too, but the player's start may clear it: the button is the sign)
+        wait_js(page, "document.getElementById('lock').textContent === 'unlock'", "the lock")
+        assert lock_state() == (True, "near miss at the junction")
+        assert page.locator("#drives li:has-text('monday') .badge.lock").count() == 1
+        page.select_option("#f-locked", "yes")
+        assert page.locator("#drives li b").all_inner_texts() == ["monday"]
+        page.select_option("#f-locked", "")
+        page.click("#lock")
+        wait_js(page, "document.getElementById('lock').textContent === 'lock'", "the unlock")
+        assert lock_state() == (False, None)
+        assert page.locator("#drives .badge.lock").count() == 0
+        assert not errors, errors
+        assert proc.poll() is None
+
+
+def test_every_address_without_a_token_gets_a_printed_one(serve_archive, tmp_path):  # noqa: F811
+    """`--host 0.0.0.0` without `--token`, as docs/serve.md says: a random token in the printed
+    address, notes saying every request needs it and how to reach the server from elsewhere; a
+    request without it is refused (401), with it answered. No browser needed."""
+    import json
+    import urllib.error
+    import urllib.request
+
+    log = tmp_path / "serve.log"
+    with egovid_serve(serve_archive, log, "--host", "0.0.0.0", "--read-only") as (url, _):
+        m = re.fullmatch(r"http://0\.0\.0\.0:(\d+)/\?token=([A-Za-z0-9_-]+)", url)
+        assert m and len(m.group(2)) >= 32, url
+        port, token = m.groups()
+        deadline = time.monotonic() + 30  # the notes follow the address line, on stderr
+        while "in place of 0.0.0.0" not in log.read_text() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        notes = log.read_text()
+        assert "every request needs the token" in notes and "in place of 0.0.0.0" in notes, notes
+
+        def get(path: str, headers: dict | None = None) -> int:
+            req = urllib.request.Request(f"http://127.0.0.1:{port}{path}", headers=headers or {})
+            try:
+                with urllib.request.urlopen(req, timeout=30) as r:
+                    assert len(json.loads(r.read())["drives"]) == 2
+                    return r.status
+            except urllib.error.HTTPError as e:
+                return e.code
+
+        assert get("/api/drives") == 401
+        assert get("/api/drives", {"x-egovid-token": "x" * len(token)}) == 401
+        assert get("/api/drives", {"x-egovid-token": token}) == 200

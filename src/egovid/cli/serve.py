@@ -21,9 +21,18 @@ def serve(
     ),
     port: int = typer.Option(8642, "--port", help="Port to listen on (0: any free port)."),
     token: str = typer.Option(
-        None, "--token", help="Access token (16 characters or more; default: a random one, printed in the address)."
+        None,
+        "--token",
+        help="Access token, 16 characters or more. Changes (lock, unlock, forget) always need it (the page sends "
+        "it); with a --host other than 127.0.0.1, ::1 or localhost every request does. Default: a random one, printed "
+        "in the address.",
     ),
-    read_only: bool = typer.Option(False, "--read-only", help="Hide every change: no lock, unlock or forget."),
+    read_only: bool = typer.Option(
+        False,
+        "--read-only",
+        help="Look, play, find and clip, but change nothing: the page shows no lock, unlock or forget and the API "
+        "refuses them (404).",
+    ),
     fpv: list[Path] = typer.Option(
         [], "--fpv", help="A folder with stabiliser reports (fpv stabilize --report) to open too; repeatable."
     ),
@@ -49,9 +58,24 @@ def serve(
     playback (a marker with the speed follows on the map), find by drawing on the map, incident
     clips to download, lock/unlock and forget.
 
-    Prints the address to open and serves until Ctrl-C. Video is produced on the fly as H.264 in
-    fragmented MP4 (any current Chrome, Edge, Firefox or Safari plays it); nothing is fetched from
-    the network but the map tiles, by the browser, when online.
+    Prints the address to open (`serving http://...`) and serves until Ctrl-C. Video is produced on
+    the fly as H.264 in fragmented MP4 (any current Chrome, Edge, Firefox or Safari plays it);
+    nothing is fetched from the network but the map tiles, by the browser, when online.
+
+    **Access.** On 127.0.0.1 (the default) only this machine can connect and reads need no token.
+    Any other `--host` (0.0.0.0, a LAN address) needs the access token on every request: `--token`,
+    or a random one printed in the address (`?token=...`; opening it once sets a cookie). Changes
+    are POST requests with the token, never links; `--read-only` removes them.
+
+    **Examples**
+
+    * `egovid serve fleet/` : http://127.0.0.1:8642/, this machine only
+    * `egovid serve fleet/ --port 0` : any free port (printed)
+    * `egovid serve fleet/ --host 0.0.0.0 --read-only` : the LAN, a printed token, nothing can be changed
+    * `egovid serve fleet/ --host 0.0.0.0 --token "$EGOVID_TOKEN"` : a token of your own
+    * `egovid serve fleet/ --voeval vo-run/ --tiles none` : a voeval report too; no background map
+
+    More in docs/serve.md.
     """
     from egovid.cli.validate import input_folder
     from egovid.dashcam.mapdata import tile_url

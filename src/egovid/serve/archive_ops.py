@@ -55,7 +55,6 @@ class ArchiveOps:
     def _open(self):
         got = getattr(self._local, "archive", None)
         if got is None:
-
             ar = open_archive(self.root)
             got = (ar, FleetStore(ar.catalogue))
             self._local.archive = got

@@ -3,9 +3,11 @@ until interrupted."""
 
 from __future__ import annotations
 
+import errno
 import socket
 from collections.abc import Callable
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from egovid.core.errors import EgovidError
 from egovid.serve.access import is_loopback, new_token
@@ -24,6 +26,11 @@ def check_config(config: ServeConfig) -> ServeConfig:
         raise EgovidError("--token is shorter than 16 characters", "give a longer token, or leave it out to get one")
     if not (16 <= config.cache_mb <= 65536):
         raise EgovidError(f"--cache-mb {config.cache_mb} is not usable", "give 16-65536 MiB")
+    if config.tiles is not None and not tiles_ok(config.tiles):
+        raise EgovidError(
+            f"--tiles {config.tiles} is not osm, none or a tile URL",
+            "give e.g. https://tile.openstreetmap.org/{z}/{x}/{y}.png",
+        )
     for kind, folder in config.reports:
         if kind not in KINDS:
             raise EgovidError(f"report kind {kind!r} is unknown", "use --fpv DIR or --voeval DIR")
@@ -31,6 +38,12 @@ def check_config(config: ServeConfig) -> ServeConfig:
             raise EgovidError(f"report folder {folder} does not exist", f"give the folder the {kind} report is in")
     token = config.token or new_token()
     return ServeConfig(**{**config.__dict__, "token": token})
+
+
+def tiles_ok(url: str) -> bool:
+    """True for an XYZ tile URL the browser can fetch: http(s), a host, and {z}, {x} and {y}."""
+    u = urlsplit(url.replace("{s}", "a"))
+    return u.scheme in ("http", "https") and bool(u.netloc) and all(k in url for k in ("{z}", "{x}", "{y}"))
 
 
 def bind(host: str, port: int) -> socket.socket:
@@ -49,9 +62,13 @@ def bind(host: str, port: int) -> socket.socket:
         sock.bind(addr)
     except OSError as exc:
         sock.close()
-        raise EgovidError(
-            f"cannot listen on {host}:{port} ({exc.strerror})", "choose another --port (0: any free)"
-        ) from None
+        if exc.errno == errno.EADDRNOTAVAIL:
+            raise EgovidError(
+                f"--host {host} is not an address of this machine", "give 127.0.0.1, 0.0.0.0 or one of its addresses"
+            ) from None
+        fix = "a port above 1023" if exc.errno == errno.EACCES else "another --port"
+        fix = f"choose {fix} (0: any free)"
+        raise EgovidError(f"cannot listen on {host}:{port} ({exc.strerror})", fix) from None
     sock.listen(128)
     sock.set_inheritable(True)
     return sock
@@ -86,6 +103,8 @@ def serve(config: ServeConfig, say: Callable[[str], None] = print) -> None:
         say(f"serving {address(config, port)} ({config.archive}, {mode})")
         if not is_loopback(config.host):
             say("note: listening beyond this machine; every request needs the token in the address above")
+        if config.host in ("0.0.0.0", "::"):
+            say(f"note: from another machine, open it with this machine's name or address in place of {config.host}")
         server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False, lifespan="on",
                                                timeout_graceful_shutdown=3))  # fmt: skip
         server.run(sockets=[sock])

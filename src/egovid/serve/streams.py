@@ -157,7 +157,6 @@ class Producer:
         except StopIteration:
             self.error = StreamError(f"drive {src.drive_id} ended before frame {src.frames_total}", 500)
         except Exception as exc:  # kept for the viewers of this stream; the server goes on
-
             found = user_error(exc)
             text = found.one_line() if found is not None else f"{type(exc).__name__}: {exc}"
             self.error = StreamError(f"drive {src.drive_id} cannot be streamed: {text}", 500)

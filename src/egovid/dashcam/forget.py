@@ -1,9 +1,10 @@
 """``dashcam forget`` / ``lock`` / ``unlock``: retention applied to an archive.
 
 :func:`forget` picks the drives (:func:`choose`: named ones and the policies' picks, locked drives
-passed over; the other cameras of a multi-camera drive go with it) and forgets them (:func:`forget_drives`); :func:`set_lock` locks and unlocks.
-:func:`forget_drives` runs under the archive's maintenance lock (no ingest or gc at the same time)
-and changes the catalogue in one transaction, like an ingest:
+passed over; the other cameras of a multi-camera drive go with it) and forgets them
+(:func:`forget_drives`); :func:`set_lock` locks and unlocks. :func:`forget_drives` runs under the
+archive's maintenance lock (no ingest or gc at the same time) and changes the catalogue in one
+transaction, like an ingest:
 
 1. plan (:func:`egovid.dashcam.retention.plan_forget`): which segments go, which are trimmed to the
    random-access runs live drives are still coded against, which drives stay as hidden references;

@@ -342,11 +342,13 @@ def extract(
         ALL_CHANNELS,
         ExtractJob,
         channel_jobs,
+        channel_name,
         channel_output,
         extract_drive,
         plan_extract,
     )
 
+    channel = channel_name(channel)
     ar = _open(archive)
     check_output(out, exts=".mkv .mp4")
     job = plan_extract(ar, drive, start, duration)  # checked before the progress display starts
@@ -571,8 +573,9 @@ def clip_cmd(
     """
     from egovid.cli import validate
     from egovid.dashcam.clip import channel_plans, plan_clip, write_clip
-    from egovid.dashcam.extract import ALL_CHANNELS, channel_output
+    from egovid.dashcam.extract import ALL_CHANNELS, channel_name, channel_output
 
+    channel = channel_name(channel)
     validate.outputs([], (out, ".mp4", "clip"), (out.with_suffix(".gpx"), ".gpx", "GPX beside the clip"))
     validate.number(radius, "--radius", lo=0, lo_open=True, hi=100_000, unit="m")
     validate.number(before, "--before", lo=0, hi=3600, unit="s")

@@ -15,6 +15,7 @@ import hashlib
 import itertools
 import os
 import queue
+import re
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
@@ -436,6 +437,18 @@ class ChannelJob:
     frame_start: int
     frame_end: int
     start_utc: float
+
+
+def channel_name(text: str | None) -> str | None:
+    """``--channel`` checked and in lower case (None stays None: the main camera);
+    :class:`EgovidError` for text that cannot name a camera."""
+    if text is None:
+        return None
+    name = text.strip().lower()
+    if not re.fullmatch(r"[a-z0-9_]{1,40}", name):
+        raise EgovidError(f"--channel {text!r} is not a camera name",
+                          f"give front, rear, interior, left_repeater … or {ALL_CHANNELS}")  # fmt: skip
+    return name
 
 
 def _nearest(times: np.ndarray, t: float) -> int:

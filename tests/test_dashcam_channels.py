@@ -121,6 +121,8 @@ def test_a_front_and_rear_pair_is_one_drive_with_two_channels(pair):
     ingest = json.loads((pair["dir"] / "ingest1.json").read_text())  # one drive, its rear camera beside it
     assert [ingest["camera"], *(x["camera"] for x in ingest["channels"])] == ["front", "rear"]
     assert ingest["channels"][0]["channel_of"] == days[1]["name"]
+    for rep_ in (ingest["channels"][0], json.loads((pair["dir"] / "ingest0.json").read_text())["channels"][0]):
+        assert rep_["new_paths"] == [] and rep_["split_paths"] == []  # a camera follows its drive's paths
     # Each camera is coded against the same camera of the older drive (never across cameras).
     rows = _rows(root)
     ids = {x[1]: x[0] for x in rows["drives"]}

@@ -223,3 +223,35 @@ def test_forget_takes_the_cameras_with_their_drive(pair, tmp_path):
     assert {x[1] for x in rows["drives"]} == {pair["days"][0]["name"], f"{pair['days'][0]['name']}~rear"}
     assert len(rows["drive_channels"]) == 1
     assert run_cli("dashcam", "check", root).returncode == 0
+
+
+def test_a_camera_comes_later_and_a_rear_loop_file_continues_its_channel(pair, tmp_path):
+    """As after a kill between a drive's commit and its camera's: the front file archived alone,
+    then the card again adds the rear camera to that drive. And a rear loop file synced later
+    continues the rear channel (appended), not a drive of its own."""
+    root = tmp_path / "archive"
+    assert run_cli("dashcam", "init", root).returncode == 0
+    one, two = pair["days"]
+    r = run_cli("dashcam", "ingest", root, one["files"][0], "--gps", one["gps"], "--codec", "vp9")
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = run_cli("dashcam", "ingest", root, one["card"], "--gps", one["gps"], "--codec", "vp9")
+    assert r.returncode == 0 and "1 file(s) already archived" in r.stdout, r.stdout + r.stderr
+    assert f"rear camera of drive '{one['name']}'" in r.stdout, r.stdout
+    first = tmp_path / "first"
+    first.mkdir()
+    for f in two["files"][:2]:  # the front file and the rear camera's first loop file
+        shutil.copy(f, first / f.name)
+    assert run_cli("dashcam", "ingest", root, first, "--gps", two["gps"], "--codec", "vp9").returncode == 0
+    r = run_cli("dashcam", "ingest", root, two["files"][2], "--gps", two["gps"], "--codec", "vp9")
+    assert r.returncode == 0 and f"appended to drive '{two['name']}~rear'" in r.stdout, r.stdout + r.stderr
+    rows = _rows(root)
+    assert sorted(x[1] for x in rows["drives"]) == sorted(
+        [one["name"], f"{one['name']}~rear", two["name"], f"{two['name']}~rear"]
+    )
+    assert len(rows["drive_channels"]) == 2
+    out = tmp_path / "r.mkv"
+    r = run_cli("dashcam", "extract", root, two["name"], "--channel", "rear", "--start", "5", "-o", out)
+    assert r.returncode == 0, r.stderr
+    got = _frames(out)
+    assert [_closest(f, two["rear"]) for f in got[:3]] == [50, 51, 52]  # after the gap, by its time
+    assert run_cli("dashcam", "check", root).returncode == 0

@@ -169,11 +169,12 @@ def ingest_videos(
     new = [p for p in prepared if p.append is None]
     outcomes = [_append(archive, p, opts, hooks) for p in appends]  # in order, one commit each
     mains = [p for p in new if p.channel_of is None]
-    one = len(mains) == 1 and all(p.channel_of == mains[0].name for p in new if p.channel_of is not None)
+    head = mains[0] if len(mains) == 1 else new[0] if len(new) == 1 else None
+    one = head is not None and all(p is head or p.channel_of == head.name for p in new)
     if one and not appends and engine.scheduler is None:  # one drive (and its other cameras), here
-        first = DriveOutcome(mains[0], ingest_drive(archive, drive_input(mains[0]), opts, progress=hooks.progress))
+        first = DriveOutcome(head, ingest_drive(archive, drive_input(head), opts, progress=hooks.progress))
         hooks.drive(first)
-        rest = [_append(archive, p, opts, hooks) for p in new if p is not mains[0]]
+        rest = [_append(archive, p, opts, hooks) for p in new if p is not head]
         return IngestResult([first, *rest], plan.skipped, single=True, known=len(plan.known))
     if new:
         outcomes += _run_batch(archive, new, opts, engine, hooks)

@@ -255,3 +255,66 @@ def test_a_camera_comes_later_and_a_rear_loop_file_continues_its_channel(pair, t
     got = _frames(out)
     assert [_closest(f, two["rear"]) for f in got[:3]] == [50, 51, 52]  # after the gap, by its time
     assert run_cli("dashcam", "check", root).returncode == 0
+
+
+def _held(lock: Path) -> bool:
+    """Whether another process holds the archive's maintenance lock (a restore is under way)."""
+    import fcntl
+
+    with open(lock, "a+") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        fcntl.flock(fh, fcntl.LOCK_UN)
+        return False
+
+
+@pytest.mark.slow
+def test_a_kill_mid_restore_leaves_the_archive_empty_then_it_restores_whole(pair, tmp_path):
+    """kill -9 while a restore copies rows inside its transaction (the backup padded with 200000
+    known-file rows so the copy takes seconds; killed once the restore holds the archive's
+    maintenance lock and has been copying for a while): the catalogue is as empty as before and
+    check is clean; the restore run again gives every row, the cameras included."""
+    import subprocess
+    import sys
+    import time
+
+    from conftest import _wait_for
+
+    backup = tmp_path / "b.sqlite"
+    assert run_cli("dashcam", "backup", pair["root"], backup).returncode == 0
+    db = sqlite3.connect(str(backup))
+    rng = np.random.default_rng(30)
+    db.executemany("INSERT INTO file_digests(sha256, bytes, name) VALUES(?,?,?)",
+                   ((rng.bytes(32).hex(), 1000 + k, f"FILE{k:06d}.MP4") for k in range(200_000)))  # fmt: skip
+    db.commit()
+    db.close()
+    new = tmp_path / "new"
+    assert run_cli("dashcam", "init", new).returncode == 0
+    empty = _rows(new)
+    proc = subprocess.Popen([sys.executable, "-m", "egovid", "dashcam", "restore", str(backup), str(new)],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        _wait_for(lambda: _held(new / ".lock") or proc.poll() is not None, "the restore's transaction", 300)
+        time.sleep(1.0)  # copying rows
+        assert proc.poll() is None, f"the restore ended (status {proc.returncode}) before it could be killed"
+    finally:
+        proc.send_signal(9)
+        proc.wait(timeout=60)
+    assert _rows(new) == empty
+    shutil.rmtree(new / "blobs")
+    shutil.copytree(pair["root"] / "blobs", new / "blobs")
+    r = run_cli("dashcam", "check", new)
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = run_cli("dashcam", "restore", backup, new)
+    assert r.returncode == 0, r.stderr
+    got, want = _rows(new), _rows(pair["root"])
+    assert len(got["file_digests"]) == len(want["file_digests"]) + 200_000
+    assert {k: v for k, v in got.items() if k != "file_digests"} == {
+        k: v for k, v in want.items() if k != "file_digests"
+    }
+    r = run_cli("dashcam", "check", new)
+    assert r.returncode == 0, r.stdout + r.stderr
+    out = tmp_path / "r.mkv"
+    assert run_cli("dashcam", "extract", new, pair["days"][1]["name"], "--channel", "rear", "-o", out).returncode == 0

@@ -474,10 +474,12 @@ def channel_jobs(archive: Archive, drive: Drive, f0: int, f1: int, channel: str 
         raise EgovidError(f"drive {drive.name} has no channel {want!r}",
                           f"its channels: {', '.join(chans)} (or {ALL_CHANNELS}: every one in sync)")  # fmt: skip
     names = list(chans) if want == ALL_CHANNELS else [want]
-    if names == [main] and len(chans) == 1 and cat.get_meta("fleet_schema") is None:
-        return [ChannelJob(main, drive, f0, f1, float("nan"))]  # no frame times (nor other cameras)
-    fleet = FleetStore(cat)
-    futc = fleet.frame_utc(drive.id, drive.fps)
+    fleet = FleetStore(cat) if cat.get_meta("fleet_schema") is not None else None
+    futc = fleet.frame_utc(drive.id, drive.fps) if fleet is not None else np.zeros(0)
+    if names == [main]:  # the drive itself: its frames as asked (frame times only said, where known)
+        return [ChannelJob(main, drive, f0, f1, float(futc[f0]) if len(futc) > f0 else float("nan"))]
+    if fleet is None or len(futc) < f1:
+        raise EgovidError(f"drive {drive.name} has no frame times to put its cameras in step", DAMAGED)
     t0, t1 = float(futc[f0]), float(futc[f1 - 1])
     spans: dict[str, tuple[Drive, np.ndarray]] = {}
     for ch in names:

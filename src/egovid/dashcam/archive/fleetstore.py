@@ -191,6 +191,14 @@ def drive_channels(cat: Catalogue, primary_id: int) -> dict[str, int]:
     return out
 
 
+def drive_camera(cat: Catalogue, drive_id: int) -> str:
+    """The camera channel drive ``drive_id`` holds (``front`` without fleet rows); read only."""
+    if fleet_version(cat) == 0:
+        return "front"
+    row = cat._q("SELECT channel FROM drive_meta WHERE drive_id = ?", (int(drive_id),)).fetchone()
+    return row[0] if row and row[0] else "front"
+
+
 def channel_of_drives(cat: Catalogue) -> dict[int, str]:
     """Drive id → the camera channel it holds (``front`` for drives without fleet rows); read only."""
     if fleet_version(cat) == 0:

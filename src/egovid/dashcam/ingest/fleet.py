@@ -19,6 +19,7 @@ from __future__ import annotations
 import datetime as dt
 import uuid
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -181,7 +182,7 @@ def prepare(
         raise EgovidError(f"--name {name!r} names one drive, but the inputs make {len(mains)}",
                           "leave --name out: each drive is named after its first file")  # fmt: skip
     out: list[PreparedDrive] = []
-    drive_of: dict = {}  # file -> the name of the drive it becomes (for the channels)
+    drive_of: dict[Path, str] = {}  # file -> the name of the drive it becomes (for the channels)
     for trip in mains:
         tail = plan.tails.get(trip.parts[0].file.path)
         if tail is not None:
@@ -215,7 +216,7 @@ def prepare(
     return out
 
 
-def _head_of(plan: IngestPlan, trip: Trip):
+def _head_of(plan: IngestPlan, trip: Trip) -> Path | None:
     """The main camera's file a new trip of another camera was recorded with (None: the trip is
     a drive of its own, or it continues an archived drive)."""
     first = trip.parts[0].file.path

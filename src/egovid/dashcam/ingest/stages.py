@@ -10,6 +10,7 @@ paths it splits or creates, its segments and sequences.
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import itertools
 import json
 import os
@@ -25,7 +26,7 @@ from egovid.core.video import VideoInfo, frame_times, probe
 from egovid.dashcam.align.illumination import best_match
 from egovid.dashcam.align.stops import stopped_frames
 from egovid.dashcam.archive.catalogue import Catalogue, Drive, Sequence
-from egovid.dashcam.archive.fleetstore import channel_of_drives
+from egovid.dashcam.archive.fleetstore import drive_camera
 from egovid.dashcam.archive.store import ORIGIN_META, Archive
 from egovid.dashcam.extract import reference_segments
 from egovid.dashcam.ingest.records import (
@@ -284,8 +285,7 @@ def split_stage(
     pieces = split_drive(matches, len(track.fixes.t))
     keys = _cut_known_paths(ed, plan, pieces, near)
     bounds = _frame_bounds(pieces, track.fixes.t, track.frame_utc)
-    cameras = channel_of_drives(cat)
-    same = lambda drive_id: cameras.get(drive_id, "front") == channel  # noqa: E731
+    same = functools.cache(lambda drive_id: drive_camera(cat, drive_id) == channel)
     for piece, key, f0, f1 in zip(pieces, keys, bounds[:-1], bounds[1:], strict=True):
         if f1 > f0:
             plan.pieces.append(_piece_plan(cat, ed, plan, track, xy, piece, key, (f0, f1), size, same))

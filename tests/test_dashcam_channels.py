@@ -109,8 +109,10 @@ def _closest(frame: np.ndarray, sources: list[np.ndarray]) -> int:
 
 def test_a_front_and_rear_pair_is_one_drive_with_two_channels(pair):
     root, days = pair["root"], pair["days"]
-    r = run_cli("dashcam", "report", root, "--json", pair["dir"] / "report.json")
-    assert r.returncode == 0, r.stderr
+    page = pair["dir"] / "map.html"
+    r = run_cli("dashcam", "report", root, "--json", pair["dir"] / "report.json", "--html", page)
+    assert r.returncode == 0 and "map of 2 drive(s)" in r.stdout, r.stdout + r.stderr
+    assert page.read_text().count('"cameras":"front (main), rear (') == 2
     rep = {x["drive"]: x for x in json.loads((pair["dir"] / "report.json").read_text())["drives"]}
     for day in days:
         main = rep[day["name"]]

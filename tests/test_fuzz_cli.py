@@ -228,6 +228,9 @@ CASES: list[tuple[str, str, str]] = [
     ("dashcam-ingest-video-missing", "dashcam ingest arc nosuch.mp4 --gps good.gpx", "not found"),
     ("dashcam-extract-start-inf", "dashcam extract arc d1 -o x.mkv --start inf", "finite"),
     ("dashcam-extract-unknown-drive", "dashcam extract arc nosuch -o x.mkv", "nosuch"),
+    ("dashcam-extract-channel-not-a-name", "dashcam extract arc d1 -o x.mkv --channel rear/../x", "not a camera name"),
+    ("dashcam-extract-channel-empty", "dashcam extract arc d1 -o x.mkv --channel=", "not a camera name"),
+    ("dashcam-extract-channel-unknown-drive", "dashcam extract arc nosuch -o x.mkv --channel all", "nosuch"),
     ("dashcam-show-unknown-drive", "dashcam show arc nosuch", "nosuch"),
     ("dashcam-list-not-archive", "dashcam list notarc", "not an egovid archive"),
     ("dashcam-list-missing", "dashcam list nosuch", "not an egovid archive"),
@@ -276,6 +279,16 @@ CASES: list[tuple[str, str, str]] = [
     ("dashcam-clip-radius-zero", "dashcam clip arc -o c.mp4 --near 48.1,11.5 --radius 0", "--radius"),
     ("dashcam-clip-unknown-drive", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z --drive nosuch", "nosuch"),
     ("dashcam-clip-nothing-then", "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z", "not recorded"),
+    (
+        "dashcam-clip-channel-not-a-name",
+        "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z --channel Rück",
+        "camera name",
+    ),
+    (
+        "dashcam-clip-channel-nothing-then",
+        "dashcam clip arc -o c.mp4 --at 2026-05-04T08:00:00Z --channel rear",
+        "not recorded",
+    ),
     # dashcam forget / lock / unlock / check / report --html
     ("dashcam-forget-nothing", "dashcam forget arc", "nothing to forget"),
     ("dashcam-forget-unknown-drive", "dashcam forget arc nosuch", "nosuch"),

@@ -15,6 +15,13 @@ app = typer.Typer(
 )
 
 
+_CHANNEL_HELP = (
+    "Which camera of a multi-camera drive (front, rear, interior, Tesla's left_repeater …; default: the "
+    "drive's main one), or all: every camera over the same time (≤ 1 frame apart), each to OUT-CAMERA.EXT "
+    "beside the {what} named."
+)
+
+
 def _open(archive: Path):
     from egovid.dashcam.archive.store import open_archive
 
@@ -331,21 +338,40 @@ def extract(
     out: Path = typer.Option(..., "-o", "--out", help="Output video: .mkv (FFV1) or .mp4 (lossless H.264)."),
     start: float = typer.Option(None, "--start", min=0.0, help="Write from this time (seconds into the drive)."),
     duration: float = typer.Option(None, "--duration", min=0.0, help="Write this many seconds (default: to the end)."),
+    channel: str = typer.Option(None, "--channel", help=_CHANNEL_HELP.format(what="video")),
 ) -> None:
     """Write a drive back as a video, bit-exact with what the encoder reconstructed.
 
     With --start/--duration only that stretch is decoded: decoding begins at the nearest
     random-access point before it (every 24 frames by default), in this drive and in the older
-    drives it was coded against.
+    drives it was coded against. A drive of a multi-camera dashcam writes its main camera, or
+    the one --channel names (--channel all: each camera, recorded over the same time).
     """
-    from egovid.dashcam.extract import extract_drive, plan_extract
+    from egovid.dashcam.extract import (
+        ALL_CHANNELS,
+        ExtractJob,
+        channel_jobs,
+        channel_name,
+        channel_output,
+        extract_drive,
+        plan_extract,
+    )
 
+    channel = channel_name(channel)
     ar = _open(archive)
     check_output(out, exts=".mkv .mp4")
     job = plan_extract(ar, drive, start, duration)  # checked before the progress display starts
+    jobs = channel_jobs(ar, job.drive, job.frame_start, job.frame_end, channel)
+    outs = [channel_output(out, j.channel, channel == ALL_CHANNELS) for j in jobs]
+    for o in outs:
+        check_output(o, exts=".mkv .mp4")
     with staged_progress() as cb:
-        extract_drive(ar, job, out, lambda k, n: cb("extract", k, n))
-    console.print(f"{job.drive.name}: frames {job.frame_start}-{job.frame_end - 1} of {job.drive.frames} → {out}")
+        for j, o in zip(jobs, outs, strict=True):
+            extract_drive(ar, ExtractJob(j.drive, j.frame_start, j.frame_end), o,
+                          lambda k, n, c=j.channel: cb(f"extract {c}", k, n))  # fmt: skip
+    for j, o in zip(jobs, outs, strict=True):
+        what = job.drive.name if j.drive.id == job.drive.id else f"{job.drive.name} ({j.channel} camera)"
+        console.print(f"{what}: frames {j.frame_start}-{j.frame_end - 1} of {j.drive.frames} → {o}")
 
 
 @app.command("gc")
@@ -416,10 +442,11 @@ def report(
             str(d["joint_frames"]),
             saving(d["saving_on_joint_frames"]),
             ", ".join(d["references"]) or "-",
+            _camera_cell(d),
         )
         for d in rep["drives"]
     ]
-    cols = ("drive", "frames", "stored", "bits/frame", "joint frames", "saving", "references")
+    cols = ("drive", "frames", "stored", "bits/frame", "joint frames", "saving", "references", "camera")
     console.print(_table("drives", cols, drives, right=True))
     console.print(f"bitstreams in {rep['blobs']}: {_kib(rep['blob_bytes'])}; {rep['codec']}")
     if json_out is not None:
@@ -429,6 +456,15 @@ def report(
         atomic_write_text(html_out, page.html)
         note = f" ({len(page.missing)} drive(s) without a GPS track: {', '.join(page.missing)})" if page.missing else ""
         console.print(f"map of {len(page.drives)} drive(s) → {html_out}{note}")
+
+
+def _camera_cell(row: dict) -> str:
+    """A drive's camera in the report's table: ``front``, ``front (+rear)`` for a drive with other
+    cameras, ``rear of NAME`` for such a camera's row."""
+    if row.get("channel_of"):
+        return f"{row['channel']} of {row['channel_of']}"
+    more = [c for c in row.get("channels", {}) if c != row["channel"]]
+    return row["channel"] + (f" (+{', '.join(more)})" if more else "")
 
 
 # -- the fleet commands: find, clip, forget, lock, unlock -------------------------------------------
@@ -537,6 +573,7 @@ def clip_cmd(
     after: float = typer.Option(10.0, "--after", help="Seconds after the moment."),
     crf: int = typer.Option(18, "--crf", min=0, max=51, help="x264 quality (lower = better, larger)."),
     lossless: bool = typer.Option(False, "--lossless", help="Lossless H.264: every frame bit-exact with the archive."),
+    channel: str = typer.Option(None, "--channel", help=_CHANNEL_HELP.format(what="clip")),
 ) -> None:
     """Cut an incident clip: the frames around a moment (--at) or a place (--near) as a shareable
     H.264 MP4, with the archived audio and telemetry of that stretch, and its GPS track as GPX
@@ -544,8 +581,10 @@ def clip_cmd(
     digests like extract; --lossless keeps them bit for bit.
     """
     from egovid.cli import validate
-    from egovid.dashcam.clip import plan_clip, write_clip
+    from egovid.dashcam.clip import channel_plans, plan_clip, write_clip
+    from egovid.dashcam.extract import ALL_CHANNELS, channel_name, channel_output
 
+    channel = channel_name(channel)
     validate.outputs([], (out, ".mp4", "clip"), (out.with_suffix(".gpx"), ".gpx", "GPX beside the clip"))
     validate.number(radius, "--radius", lo=0, lo_open=True, hi=100_000, unit="m")
     validate.number(before, "--before", lo=0, hi=3600, unit="s")
@@ -554,13 +593,19 @@ def clip_cmd(
     place = _floats(near, 2, "--near", "48.1372,11.5756") if near else None
     ar = _open(archive)
     plan = plan_clip(ar, at=moment, near=place, radius=radius, drive=drive, before=before, after=after)
+    plans = channel_plans(ar, plan, channel)
+    outs = [channel_output(out, ch, channel == ALL_CHANNELS) for ch in plans]
+    for o in outs:
+        validate.outputs([], (o, ".mp4", "clip"), (o.with_suffix(".gpx"), ".gpx", "GPX beside the clip"))
     with staged_progress() as cb:
-        rep = write_clip(ar, plan, out, crf=crf, lossless=lossless, progress=lambda k, n: cb("clip", k, n))
-    extra = f", with {' and '.join(rep['streams'])}" if rep["streams"] else ""
-    gpx = f"; {rep['gpx']} ({rep['gps_fixes']} fixes)" if rep["gpx"] else "; no GPS fixes in the stretch"
-    console.print(
-        f"{rep['drive']}: frames {rep['frame_start']}-{rep['frame_end'] - 1} from {rep['start']} → {out}{extra}{gpx}"
-    )
+        reps = [write_clip(ar, p, o, crf=crf, lossless=lossless, progress=lambda k, n, c=ch: cb(f"clip {c}", k, n))
+                for (ch, p), o in zip(plans.items(), outs, strict=True)]  # fmt: skip
+    for rep, o in zip(reps, outs, strict=True):
+        extra = f", with {' and '.join(rep['streams'])}" if rep["streams"] else ""
+        gpx = f"; {rep['gpx']} ({rep['gps_fixes']} fixes)" if rep["gpx"] else "; no GPS fixes in the stretch"
+        console.print(
+            f"{rep['drive']}: frames {rep['frame_start']}-{rep['frame_end'] - 1} from {rep['start']} → {o}{extra}{gpx}"
+        )
 
 
 @app.command("forget")

@@ -3,7 +3,8 @@
 :func:`check_archive` verifies the catalogue (on opening: see
 :mod:`egovid.dashcam.archive.catalogue_file`), every bitstream (present, its SHA-256 matches its
 name; a blob in an object store is read back whole), the blobs no drive uses (listed by name),
-every drive's segments (they tile its frames) and reference chains (no drive depends on a
+the cameras of multi-camera drives (each a drive row of its own, checked like any drive, tied
+to a drive that exists), every drive's segments (they tile its frames) and reference chains (no drive depends on a
 missing drive or, through others, on itself); with ``deep`` it decodes every drive and compares
 the pictures with the encoder's digests. With ``repair`` it restores a damaged or missing SQLite
 catalogue from its backup (or salvages what SQLite can still read), rebuilds the spatial index,
@@ -22,6 +23,7 @@ from egovid.core.errors import EgovidError
 from egovid.dashcam.archive import catalogue_file as cfile
 from egovid.dashcam.archive.blobs import BlobFile
 from egovid.dashcam.archive.catalogue import SCHEMA_VERSION, Drive, Segment, SqliteCatalogue
+from egovid.dashcam.archive.fleetstore import channel_of_drives, fleet_version
 from egovid.dashcam.archive.references import reference_cycle
 from egovid.dashcam.archive.store import Archive, open_archive, read_marker
 from egovid.dashcam.extract import checked_frames
@@ -177,6 +179,7 @@ def _check_contents(archive: Archive, report: CheckReport, *, repair: bool, deep
     report.drives = len(drives)
     report.segments = sum(len(s) for s in c.segs.values())
     _check_tiling(c, report)
+    _check_channels(c, report)
     _check_chains(c, report)
     used = c.blob_users()
     _check_bitstreams(c, report, used, progress)
@@ -207,6 +210,22 @@ def _check_tiling(c: _Contents, report: CheckReport) -> None:
         if at != drive.frames:
             report.add("error", f"drive {drive.name}: the catalogue says {drive.frames} frames, its segments hold {at}")
             c.unreadable.add(d)
+
+
+def _check_channels(c: _Contents, report: CheckReport) -> None:
+    """The cameras of multi-camera drives (fleet tables version 2): each tied to a drive that
+    exists and recorded as the camera it is (their bitstreams are checked with every drive's)."""
+    cat = c.archive.catalogue
+    if fleet_version(cat) < 2:
+        return
+    cameras = channel_of_drives(cat)
+    rows = cat._q("SELECT drive_id, primary_id, channel FROM drive_channels ORDER BY drive_id").fetchall()
+    for i, p, ch in rows:
+        i, p = int(i), int(p)
+        if i not in c.drives or p not in c.drives:
+            report.add("error", f"the {ch} camera #{i} of drive {c.name(p)} refers to a drive not in the archive")
+        elif cameras.get(i, ch) != ch:
+            report.add("error", f"drive {c.name(i)} is the {ch} camera of {c.name(p)} but records {cameras[i]!r}")
 
 
 def _check_chains(c: _Contents, report: CheckReport) -> None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import datetime as dt
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +26,7 @@ from egovid.core.files import atomic_write_text
 from egovid.dashcam.archive.catalogue import Drive
 from egovid.dashcam.archive.fleetstore import FleetStore
 from egovid.dashcam.archive.store import Archive
-from egovid.dashcam.extract import archived_extras, extract_video
+from egovid.dashcam.extract import archived_extras, channel_jobs, extract_video
 from egovid.dashcam.find import Query, frame_positions, stretches
 from egovid.dashcam.route.clock import iso
 from egovid.dashcam.route.tracks import project
@@ -90,6 +90,16 @@ def plan_clip(
     _, moment, d, futc = best
     f0, f1 = window(futc, moment, before, after)
     return ClipPlan(d, f0, f1, float(futc[f0]), moment)
+
+
+def channel_plans(archive: Archive, plan: ClipPlan, channel: str | None = None) -> dict[str, ClipPlan]:
+    """The clip of each camera ``channel`` names (default: the drive's main one; ``all``: every
+    camera, over the time all of them recorded; :func:`~egovid.dashcam.extract.channel_jobs`),
+    by channel name."""
+    jobs = channel_jobs(archive, plan.drive, plan.frame_start, plan.frame_end, channel)
+    return {j.channel: replace(plan, drive=j.drive, frame_start=j.frame_start, frame_end=j.frame_end,
+                               start_utc=j.start_utc if np.isfinite(j.start_utc) else plan.start_utc)
+            for j in jobs}  # fmt: skip
 
 
 def _moment_in(fleet: FleetStore, d: Drive, futc: np.ndarray, at, near, radius: float) -> float | None:

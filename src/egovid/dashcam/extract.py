@@ -15,6 +15,7 @@ import hashlib
 import itertools
 import os
 import queue
+import re
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
@@ -28,7 +29,7 @@ from egovid.core.errors import EgovidError
 from egovid.core.video import ColourTags, VideoWriter
 from egovid.dashcam.archive.blobs import BlobStore
 from egovid.dashcam.archive.catalogue import Drive, Segment
-from egovid.dashcam.archive.fleetstore import FleetStore, live_drive
+from egovid.dashcam.archive.fleetstore import FleetStore, drive_channels, live_drive
 from egovid.dashcam.archive.references import check_chain
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec import registry, vpx
@@ -418,3 +419,94 @@ def extract_drive(
     encoder's reconstruction (:func:`extract_video`). ``progress(done, total)``: frames written."""
     frames = (job.frame_start, job.frame_end)
     return extract_video(archive, job.drive, out, progress, frames, **archived_extras(archive, job.drive))
+
+
+# -- the cameras of a multi-camera drive --------------------------------------------------------
+
+ALL_CHANNELS = "all"  # ``--channel all``: every camera of the drive, in sync
+
+
+@dataclass(frozen=True)
+class ChannelJob:
+    """One camera of a drive to write: its channel name, the drive row holding its frames, its
+    frames [frame_start, frame_end) and the UTC time of the first (seconds; NaN where the archive
+    has no frame times: a drive ingested before the fleet tables)."""
+
+    channel: str
+    drive: Drive
+    frame_start: int
+    frame_end: int
+    start_utc: float
+
+
+def channel_name(text: str | None) -> str | None:
+    """``--channel`` checked and in lower case (None stays None: the main camera);
+    :class:`EgovidError` for text that cannot name a camera."""
+    if text is None:
+        return None
+    name = text.strip().lower()
+    if not re.fullmatch(r"[a-z0-9_]{1,40}", name):
+        raise EgovidError(f"--channel {text!r} is not a camera name",
+                          f"give front, rear, interior, left_repeater … or {ALL_CHANNELS}")  # fmt: skip
+    return name
+
+
+def _nearest(times: np.ndarray, t: float) -> int:
+    """Index of the element of the sorted ``times`` closest to ``t``."""
+    i = int(np.searchsorted(times, t))
+    if i >= len(times):
+        return len(times) - 1
+    return i - 1 if i > 0 and t - times[i - 1] <= times[i] - t else i
+
+
+def channel_jobs(archive: Archive, drive: Drive, f0: int, f1: int, channel: str | None = None) -> list[ChannelJob]:
+    """The cameras of live drive ``drive`` to write for its frames [f0, f1) (main channel
+    numbering): ``channel`` one of its channels (default: the main one) or :data:`ALL_CHANNELS`.
+    Another camera's frames are those recorded over the same time, by frame times (UTC, the
+    nearest frame at each end: at most half a frame apart); with ``all``, every camera is cut to
+    the time all of them recorded, so the outputs start and end together. :class:`EgovidError`
+    for a channel the drive does not have (naming those it has) or one that recorded nothing then."""
+    cat = archive.catalogue
+    chans = drive_channels(cat, drive.id)
+    main = next(iter(chans))
+    want = main if channel is None else channel
+    if want != ALL_CHANNELS and want not in chans:
+        raise EgovidError(f"drive {drive.name} has no channel {want!r}",
+                          f"its channels: {', '.join(chans)} (or {ALL_CHANNELS}: every one in sync)")  # fmt: skip
+    names = list(chans) if want == ALL_CHANNELS else [want]
+    fleet = FleetStore(cat) if cat.get_meta("fleet_schema") is not None else None
+    futc = fleet.frame_utc(drive.id, drive.fps) if fleet is not None else np.zeros(0)
+    if names == [main]:  # the drive itself: its frames as asked (frame times only said, where known)
+        return [ChannelJob(main, drive, f0, f1, float(futc[f0]) if len(futc) > f0 else float("nan"))]
+    if fleet is None or len(futc) < f1:
+        raise EgovidError(f"drive {drive.name} has no frame times to put its cameras in step", DAMAGED)
+    t0, t1 = float(futc[f0]), float(futc[f1 - 1])
+    spans: dict[str, tuple[Drive, np.ndarray]] = {}
+    for ch in names:
+        d = drive if chans[ch] == drive.id else cat.drive(chans[ch])
+        times = futc if d.id == drive.id else fleet.frame_utc(d.id, d.fps)
+        half = 0.5 / d.fps
+        if not len(times) or times[-1] < t0 - half or times[0] > t1 + half:
+            if want != ALL_CHANNELS:
+                raise EgovidError(f"the {ch} camera of drive {drive.name} recorded nothing in that stretch",
+                                  "choose another stretch, or --channel all for the cameras that did")  # fmt: skip
+            continue
+        spans[ch] = (d, times)
+    if want == ALL_CHANNELS and len(spans) > 1:  # the time every camera recorded
+        t0 = max([t0, *(float(x[0]) for _, x in spans.values())])
+        t1 = min([t1, *(float(x[-1]) for _, x in spans.values())])
+        if t1 < t0:
+            raise EgovidError(f"the cameras of drive {drive.name} recorded no common time in that stretch",
+                              "extract them one by one with --channel NAME")  # fmt: skip
+    out = []
+    for ch, (d, times) in spans.items():
+        a, b = _nearest(times, t0), _nearest(times, t1) + 1
+        out.append(ChannelJob(ch, d, a, max(b, a + 1), float(times[a])))
+    return out
+
+
+def channel_output(out: str | os.PathLike, channel: str, every: bool) -> Path:
+    """Where a camera is written: ``out`` itself, or with ``--channel all`` ``OUT-CHANNEL.EXT``
+    beside it (``every``)."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}-{channel}{out.suffix}") if every else out

@@ -1,9 +1,10 @@
 """``dashcam forget`` / ``lock`` / ``unlock``: retention applied to an archive.
 
 :func:`forget` picks the drives (:func:`choose`: named ones and the policies' picks, locked drives
-passed over) and forgets them (:func:`forget_drives`); :func:`set_lock` locks and unlocks.
-:func:`forget_drives` runs under the archive's maintenance lock (no ingest or gc at the same time)
-and changes the catalogue in one transaction, like an ingest:
+passed over; the other cameras of a multi-camera drive go with it) and forgets them
+(:func:`forget_drives`); :func:`set_lock` locks and unlocks. :func:`forget_drives` runs under the
+archive's maintenance lock (no ingest or gc at the same time) and changes the catalogue in one
+transaction, like an ingest:
 
 1. plan (:func:`egovid.dashcam.retention.plan_forget`): which segments go, which are trimmed to the
    random-access runs live drives are still coded against, which drives stay as hidden references;
@@ -31,7 +32,7 @@ from dataclasses import dataclass, field, replace
 
 from egovid.core.errors import EgovidError
 from egovid.dashcam.archive.catalogue import Drive, Segment
-from egovid.dashcam.archive.fleetstore import DriveMeta, FleetStore
+from egovid.dashcam.archive.fleetstore import DriveMeta, FleetStore, hidden_drive_ids
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.extract import SegmentSnapshot, segment_digest
@@ -106,9 +107,11 @@ def trim_segment(archive: Archive, seg: Segment, r0: int, r1: int) -> Segment:
 
 
 def _ages(archive: Archive, fleet: FleetStore) -> list[DriveAge]:
+    """The live drives for the policies; a camera of a multi-camera drive is locked with its drive."""
     metas = fleet.metas()
+    locked = lambda i: metas[i].locked if i in metas else False  # noqa: E731
     return [
-        DriveAge(d.id, d.start_utc, metas[d.id].locked if d.id in metas else False)
+        DriveAge(d.id, d.start_utc, locked(fleet.primary_of(d.id)))
         for d in archive.catalogue.drives()
         if d.id not in metas or metas[d.id].state == "live"
     ]
@@ -155,7 +158,10 @@ def choose(
         for i in extra:
             chosen.setdefault(i, cat.drive(i))
         skipped += [cat.drive(a.id).name for a in live if a.locked and a.id not in extra]
-    return sorted(chosen.values(), key=lambda d: d.start_utc), sorted(set(skipped))
+    mains = {fleet.primary_of(i) for i in chosen}  # a camera goes with its drive, and back
+    picked = [chosen.get(i) or cat.drive(i) for i in mains]
+    cameras = {cat.drive(i).name for i in hidden_drive_ids(cat)}  # told with their drive
+    return sorted(picked, key=lambda d: d.start_utc), sorted(set(skipped) - cameras)
 
 
 def forget(
@@ -225,7 +231,7 @@ def _plan(archive: Archive, fleet: FleetStore, drives: list[Drive]) -> _Forget:
     for d in drives:
         _refuse_locked(fleet, d)
     metas = fleet.metas()
-    targets = {d.id for d in drives}
+    targets = {i for d in drives for i in fleet.channels(d.id).values()}  # with its other cameras
     hidden = {i for i, m in metas.items() if m.state != "live"}
     everyone = {d.id: d for d in cat.drives()}
     live = [i for i in everyone if i not in targets and i not in hidden]

@@ -85,7 +85,8 @@ def _stretch(g: Segment, futc: np.ndarray, track, names: dict[int, str]) -> MapS
 
 
 def _drive_info(fleet: FleetStore, d: Drive, futc: np.ndarray, segs: list[Segment]) -> dict[str, str]:
-    """The details of a drive shown on click: when, how long, its size, files and clock."""
+    """The details of a drive shown on click: when, how long, its size, files and clock, and the
+    other cameras of a multi-camera drive."""
     meta = fleet.meta(d.id)
     parts = fleet.parts(d.id)
     gaps = [p.gap_before for p in parts[1:]]
@@ -96,6 +97,11 @@ def _drive_info(fleet: FleetStore, d: Drive, futc: np.ndarray, segs: list[Segmen
         "files": f"{len(parts)}" + (f" (gaps {', '.join(f'{x:.1f} s' for x in gaps)})" if gaps else ""),
         "clock": meta.clock.get("source", "?"),
     }
+    cams = fleet.channels(d.id)
+    if len(cams) > 1:  # the other cameras of a multi-camera dashcam, with what they take
+        cat = fleet.cat
+        more = [f"{ch} ({_kib(sum(g.bytes for g in cat.segments(i)))})" for ch, i in cams.items() if i != d.id]
+        info["cameras"] = f"{meta.channel} (main), " + ", ".join(more)
     if meta.locked:
         info["locked"] = meta.lock_note or "yes"
     return info

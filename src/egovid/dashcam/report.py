@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from egovid.dashcam.archive.catalogue import Catalogue, Drive, Segment, Sequence
-from egovid.dashcam.archive.fleetstore import live_drive, live_drives
+from egovid.dashcam.archive.fleetstore import channel_of_drives, fleet_version, live_drive, live_drives
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec import registry
 
@@ -50,14 +50,25 @@ def describe_drive(archive: Archive, key: str) -> DriveLayout:
 
 def archive_report(archive: Archive) -> dict:
     """``egovid dashcam report``: bits per path and per drive, joint vs measured standalone sizes
-    (where an ingest measured them, ``--measure-savings``), the blob store's size and the codec."""
+    (where an ingest measured them, ``--measure-savings``), the blob store's size and the codec.
+    Each drive says its camera (``channel``); a drive of a multi-camera dashcam lists its
+    cameras (``channels``: channel → the drive row holding it), and each of those rows names the
+    drive it is a camera of (``channel_of``)."""
     cat = archive.catalogue
     drives = {d.id: d for d in cat.drives()}
+    cameras = channel_of_drives(cat)
+    primary, others = _channels(cat)
     per_path: dict[int, dict] = {}
     per_drive = []
     for d in drives.values():
         segs = cat.segments(d.id)
-        per_drive.append(_drive_row(d, segs, drives))
+        row = _drive_row(d, segs, drives)
+        row["channel"] = cameras.get(d.id, "front")
+        if d.id in others:
+            row["channels"] = {row["channel"]: d.name, **{ch: drives[i].name for ch, i in others[d.id]}}
+        if d.id in primary:
+            row["channel_of"] = drives[primary[d.id]].name
+        per_drive.append(row)
         _add_sequences(per_path, cat, d, segs)
     return {
         "archive": str(archive.root),
@@ -67,6 +78,19 @@ def archive_report(archive: Archive) -> dict:
         "blob_bytes": archive.blobs.total_bytes(),
         "codec": registry.describe(),
     }
+
+
+def _channels(cat: Catalogue) -> tuple[dict[int, int], dict[int, list[tuple[str, int]]]]:
+    """The multi-camera drives (read only): channel drive → its drive, and drive → its other
+    cameras (channel, drive id)."""
+    if fleet_version(cat) < 2:
+        return {}, {}
+    primary: dict[int, int] = {}
+    others: dict[int, list[tuple[str, int]]] = {}
+    for i, p, ch in cat._q("SELECT drive_id, primary_id, channel FROM drive_channels ORDER BY drive_id"):
+        primary[int(i)] = int(p)
+        others.setdefault(int(p), []).append((ch, int(i)))
+    return primary, others
 
 
 def _drive_row(d: Drive, segs: list[Segment], drives: dict[int, Drive]) -> dict:

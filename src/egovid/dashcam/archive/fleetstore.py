@@ -174,6 +174,38 @@ def live_drive(cat: Catalogue, key: str, where: str | os.PathLike = "the archive
     return d
 
 
+def drive_channels(cat: Catalogue, primary_id: int) -> dict[str, int]:
+    """The channels of a drive: channel name → drive id, its own (main) channel first, then the
+    others in :data:`~egovid.dashcam.route.channels.CHANNELS` order. Read only: an archive without
+    fleet tables (or of version 1) has one channel, ``front`` (or the drive's recorded camera)."""
+    version = fleet_version(cat)
+    own = "front"
+    if version:
+        row = cat._q("SELECT channel FROM drive_meta WHERE drive_id = ?", (primary_id,)).fetchone()
+        own = row[0] if row and row[0] else "front"
+    out = {own: primary_id}
+    if version >= 2:
+        rows = cat._q("SELECT channel, drive_id FROM drive_channels WHERE primary_id = ?", (primary_id,))
+        for ch, i in sorted(rows, key=lambda r: channel_rank(r[0])):
+            out.setdefault(ch, int(i))
+    return out
+
+
+def drive_camera(cat: Catalogue, drive_id: int) -> str:
+    """The camera channel drive ``drive_id`` holds (``front`` without fleet rows); read only."""
+    if fleet_version(cat) == 0:
+        return "front"
+    row = cat._q("SELECT channel FROM drive_meta WHERE drive_id = ?", (int(drive_id),)).fetchone()
+    return row[0] if row and row[0] else "front"
+
+
+def channel_of_drives(cat: Catalogue) -> dict[int, str]:
+    """Drive id → the camera channel it holds (``front`` for drives without fleet rows); read only."""
+    if fleet_version(cat) == 0:
+        return {}
+    return {int(i): ch or "front" for i, ch in cat._q("SELECT drive_id, channel FROM drive_meta")}
+
+
 def _read_only(cat: Catalogue) -> bool:
     """An SQLite catalogue on a disk or file egovid may not write (it is read as it is)."""
     if isinstance(cat, SqliteCatalogue):
@@ -419,15 +451,16 @@ class FleetStore:
     def last_parts(self, t0: float, t1: float) -> list[tuple]:
         """The last file of every live drive of kind ``drive`` that ends between UTC ``t0`` and
         ``t1`` (seconds), one query: (drive id, name, frames, parts, fps, width, height, channel,
-        streams blob, the file's start_utc, its frames) each; channel drives left out."""
-        channels = " AND d.id NOT IN (SELECT drive_id FROM drive_channels)" if fleet_version(self.cat) >= 2 else ""
+        streams blob, the file's start_utc, its frames) each. The channel drives of multi-camera
+        drives are among them: a new rear file continues the rear channel (the trip planner joins
+        files of one camera only)."""
         rows = self._q(
             "SELECT d.id, d.name, d.frames, c.n, d.fps, d.width, d.height, m.channel, m.streams_blob, p.start_utc, "
             "p.frame_end - p.frame_start FROM drives d JOIN drive_meta m ON m.drive_id = d.id "
             "JOIN (SELECT drive_id, MAX(part) AS last, COUNT(*) AS n FROM drive_parts GROUP BY drive_id) c "
             "ON c.drive_id = d.id JOIN drive_parts p ON p.drive_id = d.id AND p.part = c.last "
             "WHERE m.state = 'live' AND m.kind = 'drive' "
-            "AND p.start_utc + (p.frame_end - p.frame_start) / d.fps BETWEEN ? AND ?" + channels,
+            "AND p.start_utc + (p.frame_end - p.frame_start) / d.fps BETWEEN ? AND ?",
             (float(t0), float(t1)),
         )
         return [tuple(r) for r in rows]
@@ -465,12 +498,7 @@ class FleetStore:
     def channels(self, primary_id: int) -> dict[str, int]:
         """The channels of a drive: channel name → drive id, its own (primary) channel first, then
         the others in :data:`~egovid.dashcam.route.channels.CHANNELS` order."""
-        out = {self.meta(primary_id).channel: primary_id}
-        if fleet_version(self.cat) >= 2:
-            rows = self._q("SELECT channel, drive_id FROM drive_channels WHERE primary_id = ?", (primary_id,))
-            for ch, i in sorted(rows, key=lambda r: channel_rank(r[0])):
-                out[ch] = int(i)
-        return out
+        return drive_channels(self.cat, primary_id)
 
     def primary_of(self, drive_id: int) -> int:
         """The drive a channel drive belongs to (the drive itself when it is no other's channel)."""

@@ -34,7 +34,7 @@ TAIL_PREFIX = "\x00archived drive "  # the path of a tail: no file on any disk i
 class DriveTail:
     """The end of an archived drive a new file may continue: its id and name, its frames so far
     (the appended file's first frame gets this index), its files (the appended file's part
-    number), its frame rate and its audio/telemetry blob (None: it has none)."""
+    number), its frame rate, its audio/telemetry blob (None: it has none) and its camera."""
 
     drive_id: int
     name: str
@@ -42,6 +42,7 @@ class DriveTail:
     parts: int
     fps: float
     streams_blob: str | None
+    channel: str = "front"
 
 
 def tail_path(name: str) -> Path:
@@ -86,5 +87,6 @@ class Archived:
         for did, name, frames, parts, fps, w, h, channel, blob, start, n in self.store.last_parts(t0, t1):
             path = tail_path(name)
             info = FileInfo(path, float(start), int(n) / fps, int(w), int(h), float(fps), "drive", channel, 0.0)
-            out[path] = (info, DriveTail(int(did), name, int(frames), int(parts), float(fps), blob))
+            out[path] = (info, DriveTail(int(did), name, int(frames), int(parts), float(fps), blob,
+                                                channel or "front"))  # fmt: skip
         return out

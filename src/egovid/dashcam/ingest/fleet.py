@@ -19,6 +19,7 @@ from __future__ import annotations
 import datetime as dt
 import uuid
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -47,12 +48,19 @@ class FleetRecord:
     track_source: str = ""
     files: list[FileRow] = field(default_factory=list)
     unique: bool = True  # False: the user named the drive, a second copy of known files is wanted
+    primary: str | None = None  # a channel: the name of the drive it is a camera of
 
     def commit(self, cat: Catalogue, drive_id: int) -> None:
         self.meta.drive_id = drive_id
         store = FleetStore(cat)
         store.add_drive(self.meta, self.parts, self.track, self.track_source)
         _record_files(store, drive_id, self.files, self.unique)
+        if self.primary is not None:
+            main = cat.drive(self.primary)
+            if main is None or store.meta(main.id).state != "live" or store.primary_of(main.id) != main.id:
+                raise EgovidError(f"drive {self.primary!r}, whose {self.meta.channel} camera this is, is not in the "
+                                  "archive", "ingest its main camera's files with it")  # fmt: skip
+            store.add_channel(drive_id, main.id, self.meta.channel)
 
 
 @dataclass(frozen=True)
@@ -106,11 +114,14 @@ class PreparedDrive:
     notes: list[str] = field(default_factory=list)
     append: DriveTail | None = None  # the archived drive this file is appended to
     append_at: int = 0  # its first frame's index in that drive
+    channel_of: str | None = None  # a channel: the drive it is a camera of
 
     def describe(self) -> str:
         """What the console says about the drive besides the ingest's figures."""
         if self.append is not None:
             return f" appended to drive {self.name!r} at frame {self.append_at} ({self.sources[0].path.name}),"
+        if self.channel_of is not None:
+            return f" {self.record.meta.channel} camera of drive {self.channel_of!r},"
         kind = (
             "" if self.trip.kind == "drive" else f" {self.trip.kind}{' (locked)' if self.record.meta.locked else ''},"
         )
@@ -125,7 +136,8 @@ class PreparedDrive:
                     "files": [str(s.path.resolve()) for s in self.sources], "gaps_s": [self.trip.parts[0].gap_before],
                     "notes": self.notes}  # fmt: skip
         m = self.record.meta
-        return {"kind": self.trip.kind, "camera": m.channel, "files": [str(s.path.resolve()) for s in self.sources],
+        return {"kind": self.trip.kind, "camera": m.channel, "channel_of": self.channel_of,
+                "files": [str(s.path.resolve()) for s in self.sources],
                 "gaps_s": self.trip.gaps, "clock": m.clock, "locked": m.locked, "streams": m.streams_info,
                 "colour": m.colour, "notes": self.notes}  # fmt: skip
 
@@ -153,38 +165,90 @@ def prepare(
 ) -> list[PreparedDrive]:
     """The drives of an ingest plan, with their audio/telemetry already in the blob store.
 
+    A trip of another camera's files whose first file was recorded with a main camera's file
+    (``plan.heads``) becomes a *channel* of that file's drive (made now, or archived before):
+    named ``DRIVE~CHANNEL``, hidden from the lists, tied to its drive at commit (it then waits for
+    that drive's commit). Where the drive has that channel already (or is unknown), the trip is a
+    drive of its own, as files of a one-camera dashcam are.
+
     An archive made without the fleet tables (``Archive.create`` without ``setup``) gets them here,
     before any drive is committed: made inside a commit, they would list the drive being added
     as an older one."""
     store = FleetStore(archive.catalogue)
     taken = {d.name for d in archive.catalogue.drives()}
-    if name is not None and len(plan.trips.trips) > 1:
-        raise EgovidError(f"--name {name!r} names one drive, but the inputs make {len(plan.trips.trips)}",
+    channel_trips = [t for t in plan.trips.trips if _head_of(plan, t) is not None]
+    mains = [t for t in plan.trips.trips if _head_of(plan, t) is None]
+    if name is not None and len(mains) > 1:
+        raise EgovidError(f"--name {name!r} names one drive, but the inputs make {len(mains)}",
                           "leave --name out: each drive is named after its first file")  # fmt: skip
-    out = []
-    for trip in plan.trips.trips:
+    out: list[PreparedDrive] = []
+    drive_of: dict[Path, str] = {}  # file -> the name of the drive it becomes (for the channels)
+    for trip in mains:
         tail = plan.tails.get(trip.parts[0].file.path)
         if tail is not None:
             if name is not None:
                 raise EgovidError(f"--name {name!r}: the files continue drive {tail.name!r}", "leave --name out")
             out += _prepare_append(archive, tail, trip, [plan.sources[p.file.path] for p in trip.parts[1:]])
+            drive_of.update((p.file.path, tail.name) for p in trip.parts[1:])
             continue
         srcs = [plan.sources[p.file.path] for p in trip.parts]
-        nm = name or trip.parts[0].file.path.stem
-        if nm in taken:
-            other = archive.catalogue.drive(nm)
-            if name is not None or srcs[0].digest is None:
-                raise EgovidError(f"a drive named {nm!r} is already in the archive", "pass --name to choose another")
-            if other is not None and not store.has_digests(other.id):
-                # a drive ingested before files were known by content: its name is all we know
-                plan.skipped.append((trip.parts[0].file.path, f"{ALREADY_IN} as drive {nm!r}"))
-                continue
-            nm = f"{nm}-{srcs[0].digest.short[:8]}"  # another file of the same name (another card)
-            if nm in taken:
-                raise EgovidError(f"a drive named {nm!r} is already in the archive", "pass --name to choose another")
-        taken.add(nm)
+        nm = _new_name(archive, store, plan, trip, srcs, taken, name)
+        if nm is None:
+            continue
         out.append(_prepare_trip(archive, nm, trip, srcs, lock_events, unique=name is None))
+        drive_of.update((p.file.path, nm) for p in trip.parts)
+    for trip in channel_trips:
+        head = _head_of(plan, trip)
+        srcs = [plan.sources[p.file.path] for p in trip.parts]
+        known = plan.known.get(head)
+        primary = drive_of.get(head) or (known.drive_name if known is not None else None)
+        nm = f"{primary}~{srcs[0].channel}" if primary else None
+        if nm is None or nm in taken:  # no drive to join, or it has this camera already
+            nm = _new_name(archive, store, plan, trip, srcs, taken, None)
+            if nm is not None:
+                out.append(_prepare_trip(archive, nm, trip, srcs, lock_events))
+            continue
+        taken.add(nm)
+        p = _prepare_trip(archive, nm, trip, srcs, lock_events)
+        p.record.primary = primary
+        p.channel_of = primary
+        out.append(p)
     return out
+
+
+def _head_of(plan: IngestPlan, trip: Trip) -> Path | None:
+    """The main camera's file a new trip of another camera was recorded with (None: the trip is
+    a drive of its own, or it continues an archived drive)."""
+    first = trip.parts[0].file.path
+    return None if first in plan.tails else plan.heads.get(first)
+
+
+def _new_name(
+    archive: Archive,
+    store: FleetStore,
+    plan: IngestPlan,
+    trip: Trip,
+    srcs: list[FileSource],
+    taken: set[str],
+    name: str | None,
+) -> str | None:
+    """The name of a new drive (``name``, else its first file's stem; another card's file of the
+    same name gets its digest's start appended), added to ``taken``; None: the trip is a drive
+    ingested before files were known by content (recorded in ``plan.skipped``)."""
+    nm = name or trip.parts[0].file.path.stem
+    if nm in taken:
+        other = archive.catalogue.drive(nm)
+        if name is not None or srcs[0].digest is None:
+            raise EgovidError(f"a drive named {nm!r} is already in the archive", "pass --name to choose another")
+        if other is not None and not store.has_digests(other.id):
+            # a drive ingested before files were known by content: its name is all we know
+            plan.skipped.append((trip.parts[0].file.path, f"{ALREADY_IN} as drive {nm!r}"))
+            return None
+        nm = f"{nm}-{srcs[0].digest.short[:8]}"  # another file of the same name (another card)
+        if nm in taken:
+            raise EgovidError(f"a drive named {nm!r} is already in the archive", "pass --name to choose another")
+    taken.add(nm)
+    return nm
 
 
 def _file_rows(srcs: list[FileSource], first_part: int = 0) -> list[FileRow]:
@@ -282,6 +346,7 @@ def drive_input(p: PreparedDrive) -> DriveInput:
         extra=p.record,
         probe=drive_probe(p),
         append_at=p.append_at if p.append is not None else None,
+        channel=p.append.channel if p.append is not None else p.record.meta.channel,
     )
 
 

@@ -29,7 +29,9 @@ class DriveInput:
     stage *probe* already made (by whoever examined its files: the fleet's
     :func:`~egovid.dashcam.ingest.fleet.drive_input`), so that the files are not demuxed again.
     ``append_at``: the video continues the archived drive ``name``, whose frames so far it
-    expects (its frames are appended after them; a commit that finds another count fails)."""
+    expects (its frames are appended after them; a commit that finds another count fails).
+    ``channel``: the camera the video is (``front``, ``rear``, …): it is coded only against
+    older drives of the same camera."""
 
     video: Path
     gps: Path | None = None
@@ -44,6 +46,7 @@ class DriveInput:
     part_starts: tuple[float, ...] = ()
     probe: VideoProbe | None = None
     append_at: int | None = None
+    channel: str = "front"
 
     @property
     def files(self) -> tuple[Path, ...]:

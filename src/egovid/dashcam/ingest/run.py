@@ -83,7 +83,7 @@ def ingest_drive(
     with archive.locks.ingest(on_wait=(lambda _k: progress("wait", 0, 1)) if progress else None) as session:
         t0 = time.perf_counter()
         origin, new_origin = lock_areas(archive, session, track)
-        plan = split_stage(archive.catalogue, track, origin, new_origin, size)
+        plan = split_stage(archive.catalogue, track, origin, new_origin, size, inp.channel)
         if inp.append_at is not None:  # never coded against the drive it continues
             plan = without_drive(plan, archive.catalogue.drive(inp.drive_name))
         clock["split"] = time.perf_counter() - t0

@@ -245,12 +245,15 @@ class IngestPlan:
     """The drives to ingest (trips of examined files), the files left out with the reason, the
     files the archive holds already (by content: path -> what it is there), and the archived
     drives new files continue: a trip whose first part is such a drive's last file (its path a
-    key of ``tails``, :func:`~egovid.dashcam.ingest.attach.tail_path`) is appended to it."""
+    key of ``tails``, :func:`~egovid.dashcam.ingest.attach.tail_path`) is appended to it.
+    ``heads``: each file of another camera -> the main camera's file of its moment (among the
+    inputs, examined now or archived before): its trip becomes a channel of that file's drive."""
 
     trips: TripPlan
     sources: dict[Path, FileSource] = field(default_factory=dict)
     known: dict[Path, KnownFile] = field(default_factory=dict)
     tails: dict[Path, object] = field(default_factory=dict)
+    heads: dict[Path, Path] = field(default_factory=dict)
 
     @property
     def skipped(self) -> list[tuple[Path, str]]:
@@ -349,7 +352,10 @@ def plan_ingest(
     trips = plan_trips([*infos, *(i for i, _ in tails.values())], skipped=skipped, max_gap=max_gap, join=join)
     trips.trips = [t for trip in trips.trips for t in _cut_at_tails(trip, tails)]
     used = {t.parts[0].file.path for t in trips.trips if t.parts[0].file.path in tails}
-    return IngestPlan(trips, sources, known, {p: tails[p][1] for p in used})
+    heads = {
+        f: h for f, h in primary_of.items() if f in sources and sources[f].gps_source.startswith("with ")
+    }  # examined as its companion
+    return IngestPlan(trips, sources, known, {p: tails[p][1] for p in used}, heads)
 
 
 def _cut_at_tails(trip: Trip, tails: dict) -> list[Trip]:

@@ -10,6 +10,7 @@ paths it splits or creates, its segments and sequences.
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import itertools
 import json
 import os
@@ -25,6 +26,7 @@ from egovid.core.video import VideoInfo, frame_times, probe
 from egovid.dashcam.align.illumination import best_match
 from egovid.dashcam.align.stops import stopped_frames
 from egovid.dashcam.archive.catalogue import Catalogue, Drive, Sequence
+from egovid.dashcam.archive.fleetstore import drive_camera
 from egovid.dashcam.archive.store import ORIGIN_META, Archive
 from egovid.dashcam.extract import reference_segments
 from egovid.dashcam.ingest.records import (
@@ -262,13 +264,19 @@ class CataloguePaths:
 
 
 def split_stage(
-    cat: Catalogue, track: DriveTrack, origin: tuple[float, float], new_origin: bool, size: tuple[int, int]
+    cat: Catalogue,
+    track: DriveTrack,
+    origin: tuple[float, float],
+    new_origin: bool,
+    size: tuple[int, int],
+    channel: str = "front",
 ) -> SplitPlan:
     """Cut the drive into pieces, one per path (§15.1): match its fixes against the known paths
     near it, split paths where it joins or leaves them (Table 15.1), make new paths of the rest;
     for each piece, each frame's position along its path and the older drives on that path that
-    may be its baseline (frame ``size`` (width, height) equal, covering at least half of it).
-    Reads the catalogue, writes nothing: the edits are recorded in the plan for :func:`commit`."""
+    may be its baseline (frame ``size`` (width, height) equal, covering at least half of it, of
+    the same camera ``channel``: a rear camera is coded against older rear recordings). Reads
+    the catalogue, writes nothing: the edits are recorded in the plan for :func:`commit`."""
     xy = track_xy(track, origin)
     near = paths_along(cat, xy)
     ed = PlannedPaths(cat, near)
@@ -277,9 +285,10 @@ def split_stage(
     pieces = split_drive(matches, len(track.fixes.t))
     keys = _cut_known_paths(ed, plan, pieces, near)
     bounds = _frame_bounds(pieces, track.fixes.t, track.frame_utc)
+    same = functools.cache(lambda drive_id: drive_camera(cat, drive_id) == channel)
     for piece, key, f0, f1 in zip(pieces, keys, bounds[:-1], bounds[1:], strict=True):
         if f1 > f0:
-            plan.pieces.append(_piece_plan(cat, ed, plan, track, xy, piece, key, (f0, f1), size))
+            plan.pieces.append(_piece_plan(cat, ed, plan, track, xy, piece, key, (f0, f1), size, same))
     plan.references = reference_segments(cat, {c.drive_id for p in plan.pieces for c in p.candidates})
     return plan
 
@@ -340,9 +349,11 @@ def _piece_plan(
     key,
     frames: tuple[int, int],
     size: tuple[int, int],
+    same_camera=lambda _drive_id: True,
 ) -> PiecePlan:
     """One piece: its path (a new one, recorded in ``plan``, where ``key`` is None), each frame's
-    position along it (metres) and the older drives on it that may be its baseline."""
+    position along it (metres) and the older drives on it that may be its baseline (of the same
+    size, and of the same camera: ``same_camera(drive_id)``)."""
     f0, f1 = frames
     seg_xy = xy[piece.start : piece.end]
     if key is None:
@@ -356,7 +367,7 @@ def _piece_plan(
     pos = (np.interp(t_video, tt, s_fix) if len(tt) > 1 else np.full(f1 - f0, s_fix[0])).astype(np.float32)
     cands = []
     for s in ed.sequences(key):
-        if range_overlap(s.positions, pos) < 0.5:
+        if range_overlap(s.positions, pos) < 0.5 or not same_camera(s.drive_id):
             continue
         d = cat.drive(s.drive_id)
         if (d.width, d.height) == size:

@@ -102,8 +102,9 @@ class IngestResult:
     def to_dict(self) -> dict:
         """The ingest's JSON report (``--json``)."""
         skipped = [{"file": str(f), "reason": why} for f, why in self.skipped]
-        if self.single:
-            return {**self.drives[0].to_dict(), "skipped": skipped}
+        if self.single:  # one drive; its other cameras (if any) beside it
+            channels = {"channels": [d.to_dict() for d in self.drives[1:]]} if len(self.drives) > 1 else {}
+            return {**self.drives[0].to_dict(), **channels, "skipped": skipped}
         failed = [{"drive": d.name, "error": d.error} for d in self.failed]
         return {"drives": [d.to_dict() for d in self.added], "failed": failed, "skipped": skipped}
 
@@ -167,19 +168,23 @@ def ingest_videos(
     appends = [p for p in prepared if p.append is not None]
     new = [p for p in prepared if p.append is None]
     outcomes = [_append(archive, p, opts, hooks) for p in appends]  # in order, one commit each
-    if len(new) == 1 and not appends and engine.scheduler is None:
-        report = ingest_drive(archive, drive_input(new[0]), opts, progress=hooks.progress)
-        outcome = DriveOutcome(new[0], report)
-        hooks.drive(outcome)
-        return IngestResult([outcome], plan.skipped, single=True, known=len(plan.known))
+    mains = [p for p in new if p.channel_of is None]
+    head = mains[0] if len(mains) == 1 else new[0] if len(new) == 1 else None
+    one = head is not None and all(p is head or p.channel_of == head.name for p in new)
+    if one and not appends and engine.scheduler is None:  # one drive (and its other cameras), here
+        first = DriveOutcome(head, ingest_drive(archive, drive_input(head), opts, progress=hooks.progress))
+        hooks.drive(first)
+        rest = [_append(archive, p, opts, hooks) for p in new if p is not head]
+        return IngestResult([first, *rest], plan.skipped, single=True, known=len(plan.known))
     if new:
         outcomes += _run_batch(archive, new, opts, engine, hooks)
     return IngestResult(outcomes, plan.skipped, known=len(plan.known))
 
 
 def _append(archive: Archive, p: PreparedDrive, opts: IngestOptions, hooks: IngestHooks) -> DriveOutcome:
-    """One file appended to an archived drive, in this process (the files of a drive one after
-    another: each expects the frames the one before left). A failure is the drive's outcome."""
+    """One file appended to an archived drive (or another camera of a drive just added), in this
+    process (the files of a drive one after another: each expects the frames the one before
+    left). A failure is the drive's outcome."""
     try:
         outcome = DriveOutcome(p, ingest_drive(archive, drive_input(p), opts, progress=hooks.progress))
     except EgovidError as exc:
@@ -194,6 +199,9 @@ def _run_batch(
     """The prepared drives as one batch on the task engine; their outcomes as they end."""
     by_name = {p.name: p for p in prepared}
     batch = plan_batch(archive, [drive_input(p) for p in prepared], opts)
+    for p in prepared:  # a camera's channel is committed after its drive
+        if p.channel_of in by_name and p.channel_of not in batch.after.setdefault(p.name, []):
+            batch.after[p.name].append(p.channel_of)
     n = len(batch.jobs)
     hooks.batch(n, f"Dask cluster {engine.scheduler}" if engine.scheduler else f"{engine.workers} local worker(s)")
     hooks.progress("drives", 0, n)

@@ -222,6 +222,12 @@ def stabilize_cmd(
         help="Level every view with gravity (the accelerometer's where the camera logs one, else the path's "
         "mean down direction).",
     ),
+    readout: float = typer.Option(
+        None,
+        "--readout",
+        help="Rolling-shutter frame readout in ms (negative: bottom row first; 0: global shutter). Default: the "
+        "file's (GoPro SROT) or its lens profile's where known, else none.",
+    ),
     keep_roll: bool = typer.Option(False, "--keep-roll", help="Keep intentional roll instead of levelling it."),
     method: str = typer.Option("ve", help="Stability measure of the objective: ve | sve."),
     measure: bool = typer.Option(
@@ -257,6 +263,7 @@ def stabilize_cmd(
 
     check_options(strength, borders, method)
     number(max_zoom, "--max-zoom", lo=1.0, hi=4.0)
+    number(readout, "--readout", lo=-100.0, hi=100.0, unit="ms")
     check_source(source)
     video_input(src, allow_truncated=allow_truncated)
     input_file(motion, "motion CSV")
@@ -271,8 +278,8 @@ def stabilize_cmd(
         res = stabilize_video(
             src, out, source=source, focal=focal, hfov=hfov, motion=motion, strength=strength, borders=borders,
             max_zoom=max_zoom, keep_roll=keep_roll, method=method, anchor_threshold=anchor_threshold, crf=crf,
-            measure=measure, horizon_lock=horizon_lock, save_motion=save_motion, json_out=json_out, report=report,
-            progress=cb,
+            measure=measure, horizon_lock=horizon_lock, readout_ms=readout, save_motion=save_motion, json_out=json_out,
+            report=report, progress=cb,
         )  # fmt: skip
     s = res.summary()
     pb, pa = s["planned"]["before"], s["planned"]["after"]

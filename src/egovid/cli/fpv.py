@@ -298,8 +298,10 @@ def stabilize_cmd(
             f"first-person motion kept {100 * s['fpmi_retention_measured']:.1f} %"
         )
     secs = res.seconds
+    # The motion stage ran before the stabiliser when the source was resolved: count it too.
+    motion_s = res.camera_motion.seconds.get("total", 0.0) if res.camera_motion is not None else 0.0
     console.print(
-        f"{len(res.times) / max(secs['total'] - secs['measure'], 1e-9):.1f} fps stabilising"
+        f"{len(res.times) / max(motion_s + secs['total'] - secs['measure'], 1e-9):.1f} fps stabilising"
         + (f", {secs['measure']:.1f} s measuring" if measure else "")
     )
     for note in s["notes"]:

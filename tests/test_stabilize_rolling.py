@@ -83,6 +83,7 @@ def test_per_row_warp_removes_the_rolling_shutter_wobble(tmp_path):
     """A shaken camera with a 30 ms readout: stabilised with the true motion, the global warp
     (one rotation per frame) leaves the rows' skew and stretch in the output, the per-row warp
     takes most of it away. Measured on the decoded outputs."""
+    from egovid.fpv.stabilize.run import stabilize_video
     from egovid.synth.rolling import render_rolling_fpv
 
     n, ro = 60, 0.03
@@ -91,10 +92,10 @@ def test_per_row_warp_removes_the_rolling_shutter_wobble(tmp_path):
     clip = render_rolling_fpv(tmp_path / "rs.mp4", a, ro, width=480, height=270, intrinsics=intr)
     truth = Trajectory.from_euler(np.arange(n) / FPS, a)
     shear = {}
-    for r in (ro, 0.0):
+    for r in (ro, 0.0):  # through `fpv stabilize`'s function, as --readout gives it
         out = tmp_path / f"out-{r}.mp4"
-        res = stabilize(clip.video, out, intrinsics=intr, motion=truth, measure=False, readout_s=r)
-        assert np.max(1 / res.keep) <= 1.10 + 1e-9
+        res = stabilize_video(clip.video, out, motion=truth, focal=intr.focal, measure=False, readout_ms=1000 * r)
+        assert res.params["readout_ms"] == pytest.approx(1000 * r) and np.max(1 / res.keep) <= 1.10 + 1e-9
         shear[r] = _band_shear(out)
     shear_in = _band_shear(clip.video)
     assert shear[0.0] > 0.8 * shear_in > 0.5  # the global warp leaves the wobble (1.8 px measured)
@@ -139,3 +140,10 @@ def test_stabilize_through_a_fisheye_keeps_its_zoom_budget(tmp_path):
     shortfall = [warp.coverage_shortfall(FrameView(R_new[k], R_old[k][None], 1 / res.keep[k])) for k in range(n)]
     assert max(shortfall) <= 0.0
     assert res.summary()["warnings"] == []
+
+
+def test_readout_flag_is_checked_before_any_work(tmp_path):
+    from conftest import assert_one_error, run_cli
+
+    r = run_cli("fpv", "stabilize", tmp_path / "none.mp4", "-o", tmp_path / "o.mp4", "--readout", "500")
+    assert_one_error(r, "--readout")

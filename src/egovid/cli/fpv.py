@@ -256,8 +256,10 @@ def stabilize_cmd(
     of the new motion minus VE of its zigzag), then eased between anchors. That plan is then bent
     into what a zoom of at most --max-zoom can cover, with the zoom itself changing smoothly over
     time. Below the plan, what a viewer sees as shake is removed as far as the plan's first-person
-    motion allows (the plan low-passed at the lowest cutoff that keeps 90 % of its FPMI).
-    Unless --no-measure, the output is decoded and measured again, next to the plan.
+    motion allows (the plan low-passed at the lowest cutoff that keeps 90 % of its FPMI; where that
+    keeps under 92 % of the input's, the swings the plan reduced are given back below 1 Hz). With a
+    known rolling-shutter readout (--readout, GoPro SROT, the lens profile) every row band is warped
+    from its own time. Unless --no-measure, the output is decoded and measured again, next to the plan.
     """
     from egovid.fpv.stabilize.run import check_options, saved_motion_paths, stabilize_video
 

@@ -11,10 +11,21 @@ video, same estimator for both), FPMI retention (1 - VE of the pure FPM, output 
 end-to-end frames per second: egovid's stabilisation (motion, plan, render; its own measuring
 off) against vid.stab's two passes, in the same run, with the share of each egovid stage.
 Targets: ITF gain >= vid.stab's, FPMI retention better, speed >= 1.0x vid.stab.
+
+``--speed`` (issue 31's speed targets: >= 1.5x vid.stab's two passes end to end at 720p, real time
+at 1080p30): the default command itself, ``egovid fpv stabilize IN -o OUT --no-measure`` in its own
+process (motion from ``--source auto``, the plan, the visible-shake layer, crop with a dynamic zoom;
+only the output's re-measuring off), against vid.stab's two passes with their defaults, on the
+running clip at 1280x720 and 1920x1080, 30 fps (``--frames``, default 150), one after the other in
+the same run; with the load average and the CPU time the hypervisor stole during each.
 """
 
 from __future__ import annotations
 
+import argparse
+import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -30,7 +41,7 @@ from egovid.fpv.stabilize.vidstab import run_vidstab
 from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 
-from _common import cache_dir, report
+from _common import ROOT, cache_dir, report, running_clip, stolen_seconds
 
 
 def make_clips(folder: Path) -> dict[str, Path]:
@@ -111,5 +122,50 @@ def main() -> None:
         )
 
 
+def speed(frames: int) -> None:
+    """The default command against vid.stab's two passes at 720p and 1080p30 (module docstring)."""
+    folder = cache_dir("stabilize-speed")
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    for w, h in ((1280, 720), (1920, 1080)):
+        clip = running_clip(folder / f"running-{h}p-{frames}.mp4", n=frames, size=(w, h))
+        n = count_frames(clip)
+        load, steal0 = os.getloadavg()[0], stolen_seconds()
+        vs = run_vidstab(clip, folder / f"{clip.stem}.vidstab.mp4", folder, defaults=True)
+        steal1 = stolen_seconds()
+        out = folder / f"{clip.stem}.egovid.mp4"
+        cmd = [sys.executable, "-m", "egovid", "fpv", "stabilize", str(clip), "-o", str(out), "--no-measure"]
+        t = time.perf_counter()
+        r = subprocess.run(cmd, capture_output=True, text=True, env=env)
+        eg_seconds = time.perf_counter() - t
+        steal2 = stolen_seconds()
+        if r.returncode != 0:
+            raise SystemExit(f"error: egovid fpv stabilize failed: {r.stderr.strip()[-300:]}")
+        stolen = None if steal0 is None else {"vidstab": steal1 - steal0, "egovid": steal2 - steal1}
+        report(
+            f"stabilize_vs_vidstab/speed-{h}p",
+            {
+                "size": f"{w}x{h}",
+                "frames": n,
+                "fps_video": probe(clip).fps,
+                "vidstab_s": vs.seconds,
+                "vidstab_fps": n / vs.seconds,
+                "egovid_s": eg_seconds,
+                "egovid_fps": n / eg_seconds,
+                "speed_ratio_egovid_over_vidstab": vs.seconds / eg_seconds,
+                "load_1min_before": load,
+                "load_1min_after": os.getloadavg()[0],
+                "stolen_cpu_s": stolen,
+                "egovid_console": r.stdout.strip().splitlines()[-4:],
+            },
+        )
+
+
 if __name__ == "__main__":
-    main()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--speed", action="store_true", help="the speed rows only (720p and 1080p30)")
+    ap.add_argument("--frames", type=int, default=150, help="frames of the speed clips")
+    args = ap.parse_args()
+    if args.speed:
+        speed(args.frames)
+    else:
+        main()

@@ -187,6 +187,38 @@ def test_visible_layer_smooths_a_pan_and_keeps_a_running_bob(kind):
         assert vt.fpmi_kept >= 0.9
 
 
+def test_visible_layer_gives_back_the_first_person_motion_a_plan_reduced():
+    """A slow look around (0.4 Hz, 4°) with shake: a plan that halved the swings keeps well under
+    90 % of the input's FPMI; the visible layer gives the swings back (checked independently on
+    the path by the scores' own FPMI) while the shake stays out. Fast turn-backs (a 6 Hz
+    vibration with nothing intended) are shake: nothing is given back."""
+    from egovid.fpv.stabilize.measure import motion_scores
+    from egovid.fpv.stabilize.visible import FPMI_FLOOR, FPMI_MARGIN
+
+    intr = Intrinsics.from_hfov(640, 360, 98.3)
+    fps = 30.0
+    t = np.arange(180) / fps
+    rng = np.random.default_rng(4)
+    look = np.stack([4 * np.sin(2 * np.pi * 0.4 * t), 1.5 * np.sin(2 * np.pi * 0.3 * t + 1), 0 * t], 1)
+    a = look + rng.normal(0, 0.05, look.shape)
+
+    def fpmi(x):
+        return 1.0 - motion_scores(x, fps, intr).pure_fpm_ve
+
+    plan = 0.5 * look
+    assert fpmi(plan) < 0.8 * fpmi(a)
+    fitted, vt = visible_path(a, plan, intr, fps)
+    kept = fpmi(fitted.path) / fpmi(a)
+    assert vt.restored and kept >= FPMI_FLOOR + FPMI_MARGIN and kept == pytest.approx(vt.fpmi_kept_input)
+    assert np.max(1 / fitted.keep) <= 1.10 + 1e-6
+    resid = fitted.path - look
+    assert np.std(np.diff(resid[:, :2], axis=0)) < 0.5 * np.std(np.diff(a[:, :2] - look[:, :2], axis=0))
+    assert any("given back" in n for n in fitted.notes)
+    vib = np.stack([0.8 * np.sin(2 * np.pi * 6.0 * t), 0.6 * np.sin(2 * np.pi * 5.0 * t), 0 * t], 1)
+    _, vt = visible_path(vib, np.zeros_like(vib), intr, fps)
+    assert not vt.restored and vt.cutoff_hz == 0.5
+
+
 def test_horizon_lock_levels_against_the_accelerometers_gravity():
     from egovid.fpv.stabilize.horizon import down_from_accelerometer, down_from_path, lock_horizon
 

@@ -39,8 +39,9 @@ from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.camera.lens import PINHOLE, Lens
 from egovid.core.errors import EgovidError
 from egovid.core.motion.estimate import estimate_motion
+from egovid.core.motion.rolling_shutter import frame_rates, row_offsets
 from egovid.core.motion.source import CameraMotion
-from egovid.core.rotations import matrix_from_euler
+from egovid.core.rotations import matrix_from_euler, so3_exp
 from egovid.core.trajectory import Trajectory
 from egovid.core.video import probe
 from egovid.fpv.perception.model import ViewingModel, from_model_rate, to_model_rate
@@ -87,6 +88,7 @@ class StabilizeResult:
     seconds: dict[str, float] = field(default_factory=dict)
     params: dict = field(default_factory=dict)
     camera_motion: CameraMotion | None = field(default=None, repr=False)
+    render_warnings: list[str] = field(default_factory=list)
 
     def summary(self) -> dict:
         """JSON-ready results: the same input and options give the same dict (no timings)."""
@@ -112,8 +114,11 @@ class StabilizeResult:
 
     def warnings(self) -> list[str]:
         """What the user should know about the output, each with what to change: the output
-        measured shakier than the input (the visible shake of the decoded pictures)."""
-        return shake_warnings(self.before, self.after, float(np.max(1.0 / self.keep)), self.params)
+        measured shakier than the input (the visible shake of the decoded pictures), frames whose
+        lens or rolling shutter needed more zoom than the budget (their corners show border)."""
+        return shake_warnings(self.before, self.after, float(np.max(1.0 / self.keep)), self.params) + list(
+            self.render_warnings
+        )
 
 
 def shake_warnings(
@@ -243,6 +248,7 @@ def stabilize(
     horizon_lock: bool = False,
     down_world: np.ndarray | None = None,
     lens: Lens = PINHOLE,
+    readout_s: float = 0.0,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> StabilizeResult:
     """Stabilise ``src`` into ``dst`` keeping the intentional first-person motion.
@@ -254,7 +260,11 @@ def stabilize(
     accelerometer), else against the path's mean down axis. ``lens`` is the camera's projection:
     with a fisheye and ``borders="crop"`` every frame is warped through it (one remap per frame,
     :class:`~egovid.fpv.stabilize.warp.MeshWarp`) and its zoom raised where that lens needs more
-    than the path programme's pinhole corners said.
+    than the path programme's pinhole corners said. ``readout_s`` (seconds, negative: bottom row
+    first) is the frame readout of a rolling-shutter sensor: with ``borders="crop"`` every row band
+    is then warped from the orientation the camera had when it was read (:func:`row_rotations`),
+    as Gyroflow does. The zoom a lens or rolling shutter needs beyond the plan is never raised
+    above ``max_zoom``; frames that would need more are named in the warnings.
     ``progress(stage, done, total)`` is called with stages ``motion``, ``plan``, ``render`` and
     the measuring stages.
     """
@@ -296,12 +306,26 @@ def stabilize(
     R_old = matrix_from_euler(angles[:, 0], angles[:, 1], angles[:, 2])
     R_new = matrix_from_euler(path[:, 0], path[:, 1], path[:, 2])
     H = homographies(R_old, R_new, intr)
-    if borders == "crop" and lens.fisheye:
-        keep, stats = _render_through_lens(src, dst, R_old, R_new, keep, intr, lens, info.rotation, crf, progress)
-        if fitted is not None and np.any(keep < fitted.keep - 1e-9):
-            n = int(np.sum(keep < fitted.keep - 1e-9))
-            fitted.notes.append(f"the fisheye lens needed more zoom than planned on {n} frames")
+    render_warnings: list[str] = []
+    rolling = readout_s != 0.0 and len(R_old) >= 2
+    if borders == "crop" and (lens.fisheye or rolling):
+        R_rows = row_rotations(motion.times, R_old, readout_s if rolling else 0.0, _sensor_rows(intr, info.rotation))
+        views = [FrameView(R_new[k], R_rows[k], 1.0) for k in range(len(R_new))]
+        warp = MeshWarp(intr, info.rotation, lens=lens)
+        planned_zoom = 1.0 / keep
+        zoom, render_warnings = view_zooms(warp, views, planned_zoom, max_zoom, _warp_cause(lens, rolling))
+        for v, z in zip(views, zoom, strict=True):
+            v.zoom = float(z)
+        keep = 1.0 / zoom
+        stats = _render_views(src, dst, views, warp, crf, progress)
+        if fitted is not None and np.any(zoom > planned_zoom + 1e-9):
+            n = int(np.sum(zoom > planned_zoom + 1e-9))
+            fitted.notes.append(f"the {_warp_cause(lens, rolling)} needed more zoom than planned on {n} frames")
     else:
+        if rolling:
+            render_warnings.append(
+                f"the rolling shutter ({readout_s * 1000:g} ms readout) is corrected only with --borders crop"
+            )
         stats = render_stabilized(
             src,
             dst,
@@ -324,37 +348,88 @@ def stabilize(
         after = measure_video(dst, intr, masks=masks, zoom=1.0 / keep, **scores, progress=progress)
     t4 = time.perf_counter()
     params = _params(strength, borders, max_zoom, keep_roll, method, intr, opts, model, crf)
-    params.update(visible=visible and borders == "crop", horizon_lock=horizon_lock)
+    params.update(visible=visible and borders == "crop", horizon_lock=horizon_lock, readout_ms=readout_s * 1000.0)
     seconds = {"motion": t1 - t0, "plan": t2 - t1, "render": t3 - t2, "measure": t4 - t3, "total": t4 - t0}
     return StabilizeResult(
         str(dst), motion.times, angles, plan, path, keep, plans, planned, planned_before, before, after, stats,
-        fitted, vt, seconds, params,
+        fitted, vt, seconds, params, render_warnings=render_warnings,
     )  # fmt: skip
 
 
-def _render_through_lens(
+#: Row bands with their own source rotation in a rolling-shutter warp (as the Gyroflow peer's).
+RS_BANDS = 16
+
+
+def row_rotations(times: np.ndarray, R: np.ndarray, readout_s: float, rows: int, bands: int = RS_BANDS) -> np.ndarray:
+    """(K, B, 3, 3) camera-to-world orientations of ``bands`` evenly spaced readout positions of
+    every frame (first sensor row to last, as :class:`~egovid.fpv.stabilize.warp.FrameView`
+    wants them; B = 1 when ``readout_s`` is 0). ``R`` (K, 3, 3) are the orientations at the frame
+    time stamps ``times`` (K,) seconds, which are those of the middle row; a sensor of ``rows``
+    rows reads row y at :func:`~egovid.core.motion.rolling_shutter.row_offsets` from it (seconds;
+    a negative readout reads bottom to top). Between frames the orientation is a C² rotation
+    spline through ``R`` (extrapolated by at most half a readout at the clip's ends); with time
+    stamps that do not increase, each frame turns at its own central-difference rate."""
+    R = np.asarray(R, float)
+    if readout_s == 0.0 or len(R) < 2:
+        return R[:, None]
+    t = np.asarray(times, float)
+    s = np.linspace(0.0, 1.0, max(int(bands), 2))
+    offsets = row_offsets(s * (rows - 1), rows, readout_s)
+    if np.all(np.diff(t) > 0):
+        from scipy.spatial.transform import Rotation, RotationSpline
+
+        spline = RotationSpline(t, Rotation.from_matrix(R))
+        out = spline((t[:, None] + offsets[None, :]).ravel()).as_matrix()
+        return out.reshape(len(R), len(s), 3, 3)
+    w = frame_rates(R, t)  # (K, 3) rad/s, each frame's own axes
+    return R[:, None] @ so3_exp(w[:, None, :] * offsets[None, :, None])
+
+
+def view_zooms(
+    warp: MeshWarp, views: list[FrameView], planned: np.ndarray, max_zoom: float, cause: str = "lens"
+) -> tuple[np.ndarray, list[str]]:
+    """(K,) zoom of each view: the ``planned`` zoom raised to the least one that the warp's own
+    projection (lens, rolling shutter) covers, never above ``max_zoom``; and a warning, with what
+    to change, when some frames would need more than ``max_zoom`` (their edges show border)."""
+    need = required_zoom(warp, views)
+    zoom = np.minimum(np.maximum(np.asarray(planned, float), need), max_zoom)
+    over = need > max_zoom + 1e-6
+    if not np.any(over):
+        return zoom, []
+    border = max(
+        warp.coverage_shortfall(FrameView(v.R_new, v.R_rows, float(z)))
+        for v, z in zip([views[k] for k in np.flatnonzero(over)], zoom[over], strict=True)
+    )
+    top = float(need.max())
+    return zoom, [
+        f"the {cause} needs more zoom than --max-zoom {max_zoom:g} on {int(over.sum())} frames (up to {top:.3f}x): "
+        f"the zoom is held at {max_zoom:g} and their edges show up to {border:.1f} px of border; "
+        f"try --max-zoom {np.ceil(top * 100) / 100:.2f}"
+    ]
+
+
+def _warp_cause(lens: Lens, rolling: bool) -> str:
+    """What makes the warp need its own zoom, in words."""
+    return " and ".join(x for x, on in (("fisheye lens", lens.fisheye), ("rolling shutter", rolling)) if on)
+
+
+def _sensor_rows(intr: Intrinsics, rotation: int) -> int:
+    """Rows of the sensor (the display's columns where the rotation flag turns the picture)."""
+    return intr.width if int(rotation) % 180 == 90 else intr.height
+
+
+def _render_views(
     src: str | os.PathLike,
     dst: str | os.PathLike,
-    R_old: np.ndarray,
-    R_new: np.ndarray,
-    keep: np.ndarray,
-    intr: Intrinsics,
-    lens: Lens,
-    rotation: int,
+    views: list[FrameView],
+    warp: MeshWarp,
     crf: int,
     progress: Callable[[str, int, int], None] | None,
-) -> tuple[np.ndarray, RenderStats]:
-    """Render the crop through ``lens``: each frame's view (orientation ``R_new[k]`` of the frame
-    taken at ``R_old[k]``, zoom ``1/keep[k]``, raised to the least zoom the lens's own projection
-    covers); the keep used and the render's stats."""
-    warp = MeshWarp(intr, rotation, lens=lens)
-    views = [FrameView(R_new[k], R_old[k][None], 1.0) for k in range(len(R_new))]
-    zoom = np.maximum(1.0 / np.asarray(keep, float), required_zoom(warp, views))
-    for v, z in zip(views, zoom, strict=True):
-        v.zoom = float(z)
+) -> RenderStats:
+    """Render ``views`` (their zooms set) through ``warp``, one remap per frame; the render's stats."""
+    zoom = np.array([v.zoom for v in views])
     done = render_views(src, dst, views, warp, crf=crf, progress=_stage(progress, "render"))
-    stats = RenderStats(done.frames, 0.0, float(zoom.mean()), float(zoom.max()), done.seconds, done.kept, done.dropped)
-    return 1.0 / zoom, stats
+    return RenderStats(done.frames, 0.0, float(zoom.mean()), float(zoom.max()), done.seconds, done.kept, done.dropped)
 
 
 def _params(

@@ -52,6 +52,7 @@ def stabilize_video(
     measure: bool = True,
     visible: bool = True,
     horizon_lock: bool = False,
+    readout_ms: float | None = None,
     save_motion: str | os.PathLike | None = None,
     json_out: str | os.PathLike | None = None,
     report: str | os.PathLike | None = None,
@@ -68,7 +69,10 @@ def stabilize_video(
     logged one, else against the path's mean down axis. Writes the motion CSVs of
     :func:`saved_motion_paths` (``save_motion``), the deterministic JSON summary (``json_out``) and
     the HTML report (``report``) when given. Frames are warped through the camera's lens
-    (:attr:`~egovid.core.camera.resolve.CameraModel.lens`: a GoPro's fisheye modes).
+    (:attr:`~egovid.core.camera.resolve.CameraModel.lens`: a GoPro's fisheye modes) and, where the
+    frame readout time is known (``readout_ms`` milliseconds, else the file's GoPro ``SROT`` or the
+    lens profile's: :attr:`~egovid.core.camera.resolve.CameraModel.readout_ms`; 0 turns it off),
+    every row band from the orientation of its own readout time (rolling shutter).
     ``progress(stage, done, total)`` reports the stages.
     """
     fps = probe(src).fps
@@ -96,6 +100,7 @@ def stabilize_video(
         horizon_lock=horizon_lock,
         down_world=gravity_down(cm) if horizon_lock and cm is not None else None,
         lens=camera.lens,
+        readout_s=(camera.readout_ms or 0.0) / 1000.0 if readout_ms is None else readout_ms / 1000.0,
         progress=progress,
     )
     res.camera_motion = cm

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from egovid.dashcam.archive import readings
 from egovid.dashcam.archive.catalogue import Catalogue, Drive, Segment, Sequence
 from egovid.dashcam.archive.fleetstore import live_drive, live_drives
 from egovid.dashcam.archive.store import Archive
@@ -50,14 +51,17 @@ def describe_drive(archive: Archive, key: str) -> DriveLayout:
 
 def archive_report(archive: Archive) -> dict:
     """``egovid dashcam report``: bits per path and per drive, joint vs measured standalone sizes
-    (where an ingest measured them, ``--measure-savings``), the blob store's size and the codec."""
+    (where an ingest measured them, ``--measure-savings``), the blob store's size and the codec;
+    for a drive whose car recorded readings, their summary (``readings``: maximum speed and
+    accelerations, :func:`egovid.dashcam.archive.readings.summarise`; None for the others)."""
     cat = archive.catalogue
     drives = {d.id: d for d in cat.drives()}
+    recorded = readings.summaries(cat)
     per_path: dict[int, dict] = {}
     per_drive = []
     for d in drives.values():
         segs = cat.segments(d.id)
-        per_drive.append(_drive_row(d, segs, drives))
+        per_drive.append({**_drive_row(d, segs, drives), "readings": recorded.get(d.id)})
         _add_sequences(per_path, cat, d, segs)
     return {
         "archive": str(archive.root),

@@ -119,9 +119,9 @@ class ArchiveOps:
     def track(self, drive_id: int) -> dict:
         """The GPS fixes of a drive on its video clock: ``t`` (seconds from the drive's first frame),
         ``lat``/``lon`` (degrees), ``speed`` (m/s) and ``accel`` (m/s², along the track): those the
-        car recorded where it did (a Tesla's readings: its speed and forward acceleration, taken at
-        each fix's time; ``speed_source`` says which), else derived from the positions (smoothed
-        over ~5 fixes, as ingest does for logs without speed)."""
+        car recorded where it did (a Tesla's readings: its speed and acceleration along its x axis,
+        taken at each fix's time; ``speed_source`` says which), else derived from the positions
+        (smoothed over ~5 fixes, as ingest does for logs without speed)."""
 
         d = self._drive(drive_id)
         ar, fleet = self._open()

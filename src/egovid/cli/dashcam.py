@@ -335,18 +335,28 @@ def show(
 def extract(
     archive: Path = typer.Argument(..., help="Archive folder."),
     drive: str = typer.Argument(..., help="Drive name or id."),
-    out: Path = typer.Option(..., "-o", "--out", help="Output video: .mkv (FFV1) or .mp4 (lossless H.264)."),
+    out: Path = typer.Option(None, "-o", "--out", help="Output video: .mkv (FFV1) or .mp4 (lossless H.264)."),
     start: float = typer.Option(None, "--start", min=0.0, help="Write from this time (seconds into the drive)."),
     duration: float = typer.Option(None, "--duration", min=0.0, help="Write this many seconds (default: to the end)."),
     channel: str = typer.Option(None, "--channel", help=_CHANNEL_HELP.format(what="video")),
+    readings_out: Path = typer.Option(
+        None,
+        "--readings",
+        help="Also (or, without -o, only) write the readings the car recorded (speed, acceleration, "
+        "steering …; Tesla) as CSV.",
+    ),
 ) -> None:
     """Write a drive back as a video, bit-exact with what the encoder reconstructed.
 
     With --start/--duration only that stretch is decoded: decoding begins at the nearest
     random-access point before it (every 24 frames by default), in this drive and in the older
     drives it was coded against. A drive of a multi-camera dashcam writes its main camera, or
-    the one --channel names (--channel all: each camera, recorded over the same time).
+    the one --channel names (--channel all: each camera, recorded over the same time). --readings
+    writes the drive's recorded readings over the same stretch as CSV (t_s: seconds into the
+    drive, utc, then one column per channel).
     """
+    from egovid.cli import validate
+    from egovid.core.errors import EgovidError
     from egovid.dashcam.extract import (
         ALL_CHANNELS,
         ExtractJob,
@@ -357,21 +367,35 @@ def extract(
         plan_extract,
     )
 
+    if out is None and readings_out is None:
+        raise EgovidError("nothing to write", "give -o VIDEO (.mkv or .mp4), --readings FILE.csv, or both")
     channel = channel_name(channel)
     ar = _open(archive)
-    check_output(out, exts=".mkv .mp4")
+    if out is not None:
+        check_output(out, exts=".mkv .mp4")
+    validate.outputs([out], (readings_out, validate.CSV, "--readings"))
     job = plan_extract(ar, drive, start, duration)  # checked before the progress display starts
-    jobs = channel_jobs(ar, job.drive, job.frame_start, job.frame_end, channel)
-    outs = [channel_output(out, j.channel, channel == ALL_CHANNELS) for j in jobs]
-    for o in outs:
-        check_output(o, exts=".mkv .mp4")
-    with staged_progress() as cb:
+    if readings_out is not None:
+        from egovid.dashcam.readings import drive_readings, require_readings, write_csv
+
+        require_readings(ar, job.drive.id, job.drive.name)
+    if out is not None:
+        jobs = channel_jobs(ar, job.drive, job.frame_start, job.frame_end, channel)
+        outs = [channel_output(out, j.channel, channel == ALL_CHANNELS) for j in jobs]
+        for o in outs:
+            check_output(o, exts=".mkv .mp4")
+        with staged_progress() as cb:
+            for j, o in zip(jobs, outs, strict=True):
+                extract_drive(ar, ExtractJob(j.drive, j.frame_start, j.frame_end), o,
+                              lambda k, n, c=j.channel: cb(f"extract {c}", k, n))  # fmt: skip
         for j, o in zip(jobs, outs, strict=True):
-            extract_drive(ar, ExtractJob(j.drive, j.frame_start, j.frame_end), o,
-                          lambda k, n, c=j.channel: cb(f"extract {c}", k, n))  # fmt: skip
-    for j, o in zip(jobs, outs, strict=True):
-        what = job.drive.name if j.drive.id == job.drive.id else f"{job.drive.name} ({j.channel} camera)"
-        console.print(f"{what}: frames {j.frame_start}-{j.frame_end - 1} of {j.drive.frames} → {o}")
+            what = job.drive.name if j.drive.id == job.drive.id else f"{job.drive.name} ({j.channel} camera)"
+            console.print(f"{what}: frames {j.frame_start}-{j.frame_end - 1} of {j.drive.frames} → {o}")
+    if readings_out is not None:
+        fps = job.drive.fps
+        rd = drive_readings(ar, job.drive.id, job.frame_start / fps, job.frame_end / fps)
+        write_csv(rd, readings_out)
+        console.print(f"{job.drive.name}: {len(rd)} readings ({rd.source}) → {readings_out}")
 
 
 @app.command("gc")
@@ -406,9 +430,17 @@ def report(
         help="Map background: osm (OpenStreetMap tiles, fetched by the browser only when online), "
         "none, or an XYZ tile URL with {z}/{x}/{y}.",
     ),
+    figures: Path = typer.Option(
+        None,
+        "--figures",
+        help="Folder for figures: speed and acceleration over time of each drive whose car recorded them "
+        "(DRIVE-readings.png).",
+    ),
 ) -> None:
     """Bits per path and per drive, and the savings of joint coding; with --html, a map of the
-    drives (tracks coloured by drive or by saving, click one for its details)."""
+    drives (tracks coloured by drive or by saving, click one for its details). A drive whose car
+    recorded readings (Tesla) has their summary in the JSON (maximum speed and accelerations);
+    --figures draws them."""
     from egovid.cli import validate
     from egovid.core.files import atomic_write_text
     from egovid.dashcam.mapdata import archive_map
@@ -416,8 +448,12 @@ def report(
 
     validate.choice(colour, "--colour", ("drive", "saving"))
     validate.outputs([], (json_out, validate.JSON, "--json"), (html_out, validate.HTML, "--html"))
+    if figures is not None:
+        validate.output_folder(figures, what="--figures folder")
     ar = _open(archive)
     rep = archive_report(ar)
+    if figures is not None:
+        _readings_figures(ar, rep, figures)
     saving = lambda v: f"{100 * v:.1f} %" if v is not None else "-"  # noqa: E731
     paths = [
         (
@@ -449,6 +485,12 @@ def report(
     cols = ("drive", "frames", "stored", "bits/frame", "joint frames", "saving", "references", "camera")
     console.print(_table("drives", cols, drives, right=True))
     console.print(f"bitstreams in {rep['blobs']}: {_kib(rep['blob_bytes'])}; {rep['codec']}")
+    for d in (d for d in rep["drives"] if d.get("readings")):
+        r, a = d["readings"], d["readings"]["max_abs_accel_mps2"]
+        accel = ", ".join(f"{k} {v:.2f}" for k, v in a.items() if v is not None) or "-"
+        speed = f"{3.6 * r['max_speed_mps']:.1f} km/h" if r["max_speed_mps"] is not None else "-"
+        console.print(f"{d['drive']}: recorded readings ({r['source']}, {r['samples']} samples): "
+                      f"max speed {speed}, max |acceleration| (m/s²) {accel}")  # fmt: skip
     if json_out is not None:
         atomic_write_text(json_out, json.dumps(rep, indent=1, default=str))
     if html_out is not None:
@@ -465,6 +507,19 @@ def _camera_cell(row: dict) -> str:
         return f"{row['channel']} of {row['channel_of']}"
     more = [c for c in row.get("channels", {}) if c != row["channel"]]
     return row["channel"] + (f" (+{', '.join(more)})" if more else "")
+
+
+def _readings_figures(ar, rep: dict, folder: Path) -> None:
+    """Draw the recorded readings of the report's drives into ``folder``; each figure's path goes
+    into its drive's ``readings`` summary."""
+    from egovid.dashcam.archive.fleetstore import live_drives
+    from egovid.dashcam.readings import draw_report_figures
+
+    drawn = draw_report_figures(ar, folder, live_drives(ar.catalogue))
+    for d in rep["drives"]:
+        if d["drive"] in drawn and d.get("readings"):
+            d["readings"]["figure"] = str(drawn[d["drive"]])
+    console.print(f"readings of {len(drawn)} drive(s) drawn → {folder}" if drawn else "no drive has recorded readings")
 
 
 # -- the fleet commands: find, clip, forget, lock, unlock -------------------------------------------

@@ -29,6 +29,7 @@ from pathlib import Path
 
 from egovid.core.errors import EgovidError
 from egovid.core.files import temp_sibling, track_temp, untrack_temp
+from egovid.dashcam.archive import readings
 from egovid.dashcam.archive.catalogue import SCHEMA_VERSION, PostgresCatalogue, SqliteCatalogue
 from egovid.dashcam.archive.fleetstore import FLEET_SCHEMA, FleetStore
 from egovid.dashcam.archive.store import Archive
@@ -45,8 +46,9 @@ DATA_TABLES = (
     "drive_tracks",
     "file_digests",
     "drive_channels",
+    "drive_readings",
 )
-_OWN_META = ("schema_version", "fleet_schema", "fleet_postgis")  # the target's, never copied
+_OWN_META = ("schema_version", "fleet_schema", "fleet_postgis", readings.META_KEY)  # the target's, never copied
 _BATCH = 500  # rows per executemany
 
 
@@ -111,6 +113,8 @@ def _export_postgres(cat: PostgresCatalogue, tmp: Path) -> None:
             }
             with out.transaction():
                 out._q("DELETE FROM meta")
+                if "drive_readings" in present:  # created with an archive's first readings
+                    readings.create_table(out)
                 for table in (t for t in DATA_TABLES if t in present):
                     cur = db.execute(f'SELECT * FROM "{table}"')
                     cols = [c.name for c in cur.description]
@@ -176,6 +180,8 @@ def restore_catalogue(file: str | os.PathLike, archive: Archive) -> BackupReport
         with archive.locks.maintenance("restore"), cat.transaction():
             check_restore(file, archive)  # nobody ingested meanwhile
             present = {r[0] for r in src.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            if "drive_readings" in present:
+                readings.ensure_table(cat)
             for table in (t for t in DATA_TABLES if t in present):
                 report.rows[table] = _copy_table(src, cat, table)
             for p in cat.paths():

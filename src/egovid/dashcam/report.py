@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from egovid.dashcam.archive import readings
 from egovid.dashcam.archive.catalogue import Catalogue, Drive, Segment, Sequence
 from egovid.dashcam.archive.fleetstore import channel_of_drives, fleet_version, live_drive, live_drives
 from egovid.dashcam.archive.store import Archive
@@ -53,16 +54,19 @@ def archive_report(archive: Archive) -> dict:
     (where an ingest measured them, ``--measure-savings``), the blob store's size and the codec.
     Each drive says its camera (``channel``); a drive of a multi-camera dashcam lists its
     cameras (``channels``: channel → the drive row holding it), and each of those rows names the
-    drive it is a camera of (``channel_of``)."""
+    drive it is a camera of (``channel_of``). For a drive whose car recorded readings, their
+    summary (``readings``: maximum speed and accelerations,
+    :func:`egovid.dashcam.archive.readings.summarise`; None for the others)."""
     cat = archive.catalogue
     drives = {d.id: d for d in cat.drives()}
     cameras = channel_of_drives(cat)
     primary, others = _channels(cat)
+    recorded = readings.summaries(cat)
     per_path: dict[int, dict] = {}
     per_drive = []
     for d in drives.values():
         segs = cat.segments(d.id)
-        row = _drive_row(d, segs, drives)
+        row = {**_drive_row(d, segs, drives), "readings": recorded.get(d.id)}
         row["channel"] = cameras.get(d.id, "front")
         if d.id in others:
             row["channels"] = {row["channel"]: d.name, **{ch: drives[i].name for ch, i in others[d.id]}}

@@ -19,6 +19,7 @@ import numpy as np
 
 from egovid.core.errors import EgovidError
 from egovid.core.video import ColourTags
+from egovid.dashcam.archive import readings
 from egovid.dashcam.archive.fleetstore import FleetStore
 from egovid.dashcam.archive.store import open_archive
 from egovid.dashcam.clip import plan_clip, write_clip
@@ -116,11 +117,13 @@ class ArchiveOps:
 
     def track(self, drive_id: int) -> dict:
         """The GPS fixes of a drive on its video clock: ``t`` (seconds from the drive's first frame),
-        ``lat``/``lon`` (degrees), ``speed`` (m/s) and ``accel`` (m/s², along the track), both
-        derived from the positions (smoothed over ~5 fixes, as ingest does for logs without speed)."""
+        ``lat``/``lon`` (degrees), ``speed`` (m/s) and ``accel`` (m/s², along the track): those the
+        car recorded where it did (a Tesla's readings: its speed and acceleration along its x axis,
+        taken at each fix's time; ``speed_source`` says which), else derived from the positions
+        (smoothed over ~5 fixes, as ingest does for logs without speed)."""
 
         d = self._drive(drive_id)
-        _ar, fleet = self._open()
+        ar, fleet = self._open()
         track = fleet.track(d.id)
         if track is None:
             return {"drive": d.id, "t": [], "lat": [], "lon": [], "speed": [], "accel": [], "source": "none"}
@@ -129,6 +132,14 @@ class ArchiveOps:
         video_t = np.interp(t, futc, np.arange(len(futc)) / d.fps)
         speed, _ = derive_speed_bearing(t, lat, lon, None, None)
         accel = np.gradient(speed, t) if len(t) > 1 else np.zeros(len(t))
+        speed_source = "gps"
+        rec = readings.get(ar.catalogue, d.id)
+        if rec is not None and len(rec) and "speed_mps" in rec.channels and "accel_x" in rec.channels:
+            ok = np.isfinite(rec.channels["speed_mps"]) & np.isfinite(rec.channels["accel_x"])
+            if ok.any():
+                speed = np.interp(video_t, rec.t[ok], rec.channels["speed_mps"][ok])
+                accel = np.interp(video_t, rec.t[ok], rec.channels["accel_x"][ok])
+                speed_source = f"recorded ({rec.source})"
         return {
             "drive": d.id,
             "t": np.round(video_t, 3).tolist(),
@@ -138,6 +149,7 @@ class ArchiveOps:
             "accel": np.round(accel, 2).tolist(),
             "utc0": float(futc[0]) if len(futc) else d.start_utc,
             "source": "gps",
+            "speed_source": speed_source,
         }
 
     # -- decoding -----------------------------------------------------------------------------------

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.dashcam.archive import readings
 from egovid.dashcam.archive.catalogue import (
     Catalogue,
     Drive,
@@ -587,6 +588,7 @@ class FleetStore:
                                      t.align, t.blob, t.bytes, t.params)  # fmt: skip
         for i in gone:
             q("UPDATE drive_meta SET streams_blob = NULL, streams_bytes = 0 WHERE drive_id = ?", (i,))
+        readings.delete(self.cat, gone)  # what the car recorded goes with its audio and telemetry
         for i in hide:
             if self.meta(i).state == "live":
                 q("UPDATE drive_meta SET state = 'reference' WHERE drive_id = ?", (i,))

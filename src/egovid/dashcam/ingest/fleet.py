@@ -6,7 +6,9 @@ GPS, clock, kind; trips of loop-recording files) and turns every trip into a
 (decoded back to back as one drive), its GPS track (the files' own fixes joined, or the shared
 log), its UTC start, and a :class:`FleetRecord` that the ingest's commit writes in the same
 transaction (kind, camera, lock, clock, the files and their gaps, the GPS track for ``find`` and
-the map, colour tags, the audio/telemetry blob, the files' content digests). A trip that continues
+the map, colour tags, the audio/telemetry blob, the files' content digests, and the readings the
+car recorded in its video: a Tesla's per-frame speed, acceleration, steering …,
+:mod:`egovid.dashcam.archive.readings`). A trip that continues
 an archived drive (its first part is that drive's last file: :mod:`egovid.dashcam.ingest.attach`)
 becomes one :class:`AppendRecord` per new file instead, each ingested and committed on its own
 (one catalogue transaction per file) onto the end of that drive. The audio and telemetry are archived
@@ -24,13 +26,16 @@ from pathlib import Path
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.dashcam.archive import readings as readings_table
 from egovid.dashcam.archive.catalogue import Catalogue
 from egovid.dashcam.archive.fleetstore import DriveMeta, DrivePart, FleetStore
+from egovid.dashcam.archive.readings import DriveReadings, join
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec.streams import archive_streams, concat_streams
 from egovid.dashcam.ingest.attach import DriveTail
 from egovid.dashcam.ingest.records import DriveInput, VideoProbe
 from egovid.dashcam.ingest.sources import FileSource, IngestPlan
+from egovid.dashcam.readings import from_tesla
 from egovid.dashcam.route.tracks import GpsTrack, finish_track
 from egovid.dashcam.route.trips import Trip
 
@@ -49,6 +54,7 @@ class FleetRecord:
     files: list[FileRow] = field(default_factory=list)
     unique: bool = True  # False: the user named the drive, a second copy of known files is wanted
     primary: str | None = None  # a channel: the name of the drive it is a camera of
+    readings: DriveReadings | None = None
 
     def commit(self, cat: Catalogue, drive_id: int) -> None:
         self.meta.drive_id = drive_id
@@ -61,6 +67,8 @@ class FleetRecord:
                 raise EgovidError(f"drive {self.primary!r}, whose {self.meta.channel} camera this is, is not in the "
                                   "archive", "ingest its main camera's files with it")  # fmt: skip
             store.add_channel(drive_id, main.id, self.meta.channel)
+        if self.readings is not None:
+            readings_table.put(cat, drive_id, self.readings)
 
 
 @dataclass(frozen=True)
@@ -88,17 +96,19 @@ def _record_files(store: FleetStore, drive_id: int, files: list[FileRow], unique
 class AppendRecord:
     """The fleet rows of one file appended to an archived drive, written by that file's commit:
     its part, its GPS fixes (t, lat, lon), the drive's audio/telemetry blob now (blob, bytes,
-    info; None: unchanged) and its digest."""
+    info; None: unchanged), its digest and its recorded readings (on the drive's clock)."""
 
     part: DrivePart
     track: tuple[np.ndarray, np.ndarray, np.ndarray]
     streams: tuple[str | None, int, dict] | None
     files: list[FileRow] = field(default_factory=list)
+    readings: DriveReadings | None = None
 
     def commit(self, cat: Catalogue, drive_id: int) -> None:
         store = FleetStore(cat)
         store.append_part(drive_id, self.part, self.track, self.streams)
         _record_files(store, drive_id, self.files)
+        readings_table.append(cat, drive_id, self.readings)
 
 
 @dataclass
@@ -283,12 +293,22 @@ def _prepare_append(archive: Archive, tail: DriveTail, trip: Trip, srcs: list[Fi
             info = info if info.get("audio") or info.get("telemetry") else own_info.to_dict()
             new = (archive.blobs.put(streams), len(streams), info)
         track, fixes = _fixes([s], float(p.start_utc), float(p.start_utc) + s.duration)
-        rec = AppendRecord(part, fixes, new, _file_rows([s], part_no))
+        rec = AppendRecord(part, fixes, new, _file_rows([s], part_no), _readings([(s, at / tail.fps, p.start_utc)]))
         notes = list(s.clock.notes) + [f"not archived: {x}" for x in own_info.skipped]
         one = Trip("drive", [p])
         out.append(PreparedDrive(tail.name, one, [s], float(p.start_utc), track, rec, notes, tail, at))
         at += n
         part_no += 1
+    return out
+
+
+def _readings(placed: list[tuple[FileSource, float, float]]) -> DriveReadings | None:
+    """The readings the files recorded (Tesla SEI), joined on the drive's clock: ``placed`` holds
+    each file with where its first frame lands (seconds into the drive) and its UTC start."""
+    out = None
+    for s, offset, start_utc in placed:
+        if s.telemetry is not None and len(s.telemetry):
+            out = join(out, from_tesla(s.telemetry, float(offset), float(start_utc)))
     return out
 
 
@@ -301,10 +321,12 @@ def _prepare_trip(
     fps = srcs[0].info.fps
     parts, f = [], 0
     media = []
+    placed = []
     for i, (p, s) in enumerate(zip(trip.parts, srcs, strict=True)):
         n = len(s.times)
         parts.append(DrivePart(i, str(s.path.resolve()), f, f + n, float(p.start_utc), float(p.gap_before)))
         media.append((s.path, f / fps, n / fps))
+        placed.append((s, f / fps, p.start_utc))
         f += n
     blob, info = archive_streams(media)
     sha = archive.blobs.put(blob) if blob is not None else None
@@ -324,7 +346,7 @@ def _prepare_trip(
         streams_bytes=len(blob) if blob is not None else 0,
         streams_info=info.to_dict(),
     )  # fmt: skip
-    rec = FleetRecord(meta, parts, fixes, track.source, _file_rows(srcs), unique)
+    rec = FleetRecord(meta, parts, fixes, track.source, _file_rows(srcs), unique, readings=_readings(placed))
     notes = list(meta.clock["notes"]) + [f"not archived: {x}" for x in info.skipped]
     return PreparedDrive(name, trip, srcs, start, track, rec, notes)
 

@@ -35,7 +35,7 @@ from typing import Protocol
 
 import numpy as np
 
-from egovid.core.camera.tesla import read_tesla_telemetry
+from egovid.core.camera.tesla import TeslaTelemetry, read_tesla_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.times import creation_time_utc
 from egovid.core.video import VideoInfo, frame_times, probe
@@ -76,6 +76,7 @@ class FileSource:
     channel: str
     embedded: EmbeddedGps | None = None
     digest: FileDigest | None = None
+    telemetry: TeslaTelemetry | None = None  # a Tesla clip's per-frame readings (kept by the archive)
 
     @property
     def duration(self) -> float:
@@ -154,7 +155,10 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
     info = probe(path)
     times = frame_times(path)
     check_frame_size(path, info)
-    embedded = read_embedded_gps(path) or _tesla_gps(path, info, clock)
+    embedded = read_embedded_gps(path)
+    tesla = read_tesla_telemetry(path) if embedded is None else None
+    if tesla is not None:
+        embedded = _tesla_gps(path, info, clock, tesla)
     duration = span(times, info.fps)
     found = (log, "--gps") if log is not None else _own_gps(path, embedded) or _folder_log(path, info, duration, clock)
     if found is None:
@@ -187,16 +191,14 @@ def examine(video: str | os.PathLike, log: GpsTrack | None, clock: ClockOptions,
             raise
         track, source = own
         vc = place(track)
-    return FileSource(path, info, times, track, source, vc, file_kind(path), file_channel(path), embedded)
+    return FileSource(path, info, times, track, source, vc, file_kind(path), file_channel(path), embedded,
+                      telemetry=tesla)  # fmt: skip
 
 
-def _tesla_gps(path: Path, info: VideoInfo, clock: ClockOptions) -> EmbeddedGps | None:
-    """A Tesla clip's per-frame SEI positions (firmware 2025.44.25+). Its messages carry no time of
-    day: the clip's start is the time in its file name (the car's local clock; ``--tz-offset``
-    applies), else the container's creation time; None without either, or without SEI."""
-    tel = read_tesla_telemetry(path)
-    if tel is None:
-        return None
+def _tesla_gps(path: Path, info: VideoInfo, clock: ClockOptions, tel: TeslaTelemetry) -> EmbeddedGps | None:
+    """A Tesla clip's per-frame SEI positions (firmware 2025.44.25+; ``tel``, read from its SEI).
+    Its messages carry no time of day: the clip's start is the time in its file name (the car's
+    local clock; ``--tz-offset`` applies), else the container's creation time; None without either."""
     start = name_time(path.name)
     if start is None:
         start = creation_time_utc(info.creation_time)

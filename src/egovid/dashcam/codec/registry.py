@@ -29,8 +29,9 @@ class Backend:
     verify, verify_runs, clock, spool) -> EncodedSegment``; ``decode(layout, packets, first_run,
     baselines, start)`` yields unpadded I420 frames; ``joint``: whether it can code against
     baselines; ``self_test()`` raises when the library does not round-trip and returns a line
-    naming it; ``q_offset``: what is added to the archive's ``--q`` (libvpx's 0-63 scale) to code
-    at about the same PSNR-Y as libvpx at ``--q`` (the backend's own quantiser or CRF)."""
+    naming it; ``q_offset``: what a joint candidate adds to the archive's ``--q`` (libvpx's 0-63
+    scale) to code at about the same PSNR-Y as libvpx at ``--q`` (standalone SVT-AV1's offset is
+    :data:`egovid.dashcam.ingest.options.AV1_DQ`)."""
 
     name: str
     joint: bool

@@ -101,6 +101,8 @@ def test_a_new_drive_is_coded_in_av1_against_an_old_vp9_drive(old_archive, tmp_p
     for seg in segs:
         assert seg.params["joint_codec"] == "aom" and "is smaller" in seg.params["choice"]
         assert seg.params["codec"] == ("aom" if seg.mode == "joint" else "av1")
+    # the same road at the same light: libaom against the old VP9 drive beats standalone SVT-AV1
+    assert any(s.mode == "joint" and s.ref_drive_id in (drives["a"].id, drives["b"].id) for s in segs)
     out = tmp_path / "c.mkv"
     r = run_cli("dashcam", "extract", old_archive, "c", "-o", out)
     assert r.returncode == 0, r.stderr

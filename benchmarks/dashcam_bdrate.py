@@ -23,7 +23,10 @@ different speed and stops) and *different days* (sun and exposure a little diffe
 clouds and vehicles, lane offset ±0.2 m, other speed and stops).
 
 Env: EGOVID_BENCH_SIZE (default 640x360); EGOVID_BENCH_SETS (default near,day); EGOVID_BENCH_QS
-(the archive's --q points, default 24,32,40,48); EGOVID_BENCH_PRESET (default realtime);
+(the archive's --q points, default 24,32,40,48); EGOVID_BENCH_PRESET (default realtime; plain SVT-AV1 is
+then coded at that preset's SVT-AV1 preset); EGOVID_BENCH_JOINT: ``--joint-codec`` of the archive (default:
+the preset's); EGOVID_BENCH_PAIRS: only these pairs (e.g. day-a); EGOVID_BENCH_SVT_EXTRA: more SVT-AV1
+presets to compare the new drive with (e.g. 4,3: slower peers, for equal speed);
 EGOVID_BENCH_VP9=0 skips today's VP9 archive; EGOVID_BENCH_TODAY: the preset today's VP9 archive is
 made with (default realtime, today's default). Writes bench-output/dashcam_bdrate.json
 (docs/figures/ keeps the copy the docs quote).
@@ -46,6 +49,7 @@ import av
 import numpy as np
 
 from egovid.core.video import iter_frames
+from egovid.dashcam.codec.av1 import packet as owned_packet
 from egovid.dashcam.ingest.options import AV1_DQ, PRESETS
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
@@ -130,16 +134,30 @@ def drive_of(rep: dict) -> dict:
     }
 
 
-def archive_point(ref_video: Path, new_video: Path, preset: str, q: int, codec: str) -> dict:
-    """A fresh archive: ``ingest`` of the older drive, then of the new one, through the CLI."""
+def archive_point(ref_video: Path, new_video: Path, preset: str, q: int, codec: str, joint: str = "") -> dict:
+    """A fresh archive: ``ingest`` of the older drive, then of the new one, through the CLI
+    (``joint``: its ``--joint-codec``, default the preset's); what each piece of the new drive was
+    stored as, and why (read from the catalogue)."""
+    from egovid.dashcam.archive.store import Archive
+
     with tempfile.TemporaryDirectory(prefix="egovid-bd-") as tmp:
         root = Path(tmp) / "archive"
         egovid("dashcam", "init", root)
         out = {}
+        extra = ("--joint-codec", joint) if joint else ()
         for label, video in (("first", ref_video), ("new", new_video)):
             js = Path(tmp) / f"{label}.json"
-            egovid("dashcam", "ingest", root, video, "--preset", preset, "--q", q, "--codec", codec, "--json", js)
+            args = ("--preset", preset, "--q", q, "--codec", codec, *extra, "--json", js)
+            egovid("dashcam", "ingest", root, video, *args)
             out[label] = drive_of(json.loads(js.read_text()))
+        ar = Archive(root)
+        try:
+            d = ar.catalogue.drive(new_video.stem)
+            out["new"]["stored"] = [
+                {k: s.params.get(k) for k in ("codec", "joint_codec", "choice")} for s in ar.catalogue.segments(d.id)
+            ]
+        finally:
+            ar.close()
         return out
 
 
@@ -160,7 +178,7 @@ def plain(frames: list[np.ndarray], codec: str, crf: int, options: dict) -> dict
     packets += [bytes(p) for p in cc.encode(None)]
     seconds = time.perf_counter() - t0
     dec = av.CodecContext.create("libdav1d" if codec == "libsvtav1" else "libvpx-vp9", "r")
-    out = [x.to_ndarray(format="yuv420p") for p in packets for x in dec.decode(av.Packet(p))]
+    out = [x.to_ndarray(format="yuv420p") for p in packets for x in dec.decode(owned_packet(p))]
     out += [x.to_ndarray(format="yuv420p") for x in dec.decode(None)]
     se = sum(float(np.sum((a[:h].astype(np.int32) - b[:h]) ** 2)) for a, b in zip(out, frames, strict=True))
     return {
@@ -189,11 +207,16 @@ def main() -> None:
     preset = os.environ.get("EGOVID_BENCH_PRESET", "realtime")
     with_vp9 = os.environ.get("EGOVID_BENCH_VP9", "1") != "0"
     today = os.environ.get("EGOVID_BENCH_TODAY", "realtime")  # the preset of today's VP9 archive
+    joint = os.environ.get("EGOVID_BENCH_JOINT", "")
+    only = [p for p in os.environ.get("EGOVID_BENCH_PAIRS", "").split(",") if p]
+    extra = [int(p) for p in os.environ.get("EGOVID_BENCH_SVT_EXTRA", "").split(",") if p]
     svt = {"preset": str(PRESETS[preset]["av1_speed"]), "svtav1-params": "irefresh-type=2"}
     vp9 = {"deadline": "realtime", "cpu-used": "8", "b": "0", "lag-in-frames": "0", "row-mt": "1"}
     results: dict = {
         "size": f"{w}x{h}",
         "preset": preset,
+        "joint_codec": joint or PRESETS[preset]["joint_codec"],
+        "load_average_start": os.getloadavg(),
         "today_preset": today if with_vp9 else None,
         "archive_q": QS,
         "av1_crf": [min(63, q + AV1_DQ) for q in QS],
@@ -205,6 +228,8 @@ def main() -> None:
         if set_name not in sets:
             continue
         for name, ref_spec, new_spec in plist:
+            if only and name not in only:
+                continue
             paths = {}
             for label, spec in (("ref", ref_spec), (name, new_spec)):
                 p = folder / f"{label}.mp4"
@@ -213,11 +238,15 @@ def main() -> None:
                 paths[label] = p
             new_frames = frames_of(paths[name])
             row: dict = {"set": set_name}
-            row["egovid"] = [archive_point(paths["ref"], paths[name], preset, q, "av1") for q in QS]
+            row["egovid"] = [archive_point(paths["ref"], paths[name], preset, q, "av1", joint) for q in QS]
             if with_vp9:
                 row["egovid-vp9 (today)"] = [archive_point(paths["ref"], paths[name], today, q, "vp9") for q in QS]
             row["svt-av1"] = [plain(new_frames, "libsvtav1", c, svt) for c in SVT_CRFS]
             row["vp9-realtime"] = [plain(new_frames, "libvpx-vp9", c, vp9) for c in VP9_CRFS]
+            for p in extra:
+                row[f"svt-av1 preset {p}"] = [
+                    plain(new_frames, "libsvtav1", c, {**svt, "preset": str(p)}) for c in SVT_CRFS
+                ]
             if "ref" not in firsts:
                 ref_frames = frames_of(paths["ref"])
                 firsts["ref"] = [plain(ref_frames, "libsvtav1", c, svt) for c in SVT_CRFS]
@@ -230,7 +259,16 @@ def main() -> None:
                     np.mean([p["new"]["fps"] for p in row["egovid"]]) / np.mean([p["fps"] for p in row["svt-av1"]])
                 ),
                 "new drive modes": sorted({m for p in row["egovid"] for m in p["new"]["modes"]}),
+                "new drive stored as": sorted({s["codec"] for p in row["egovid"] for s in p["new"]["stored"]}),
+                "load average": os.getloadavg()[0],
             }
+            ingest_fps = float(np.mean([p["new"]["fps"] for p in row["egovid"]]))
+            for p in extra:
+                peer = row[f"svt-av1 preset {p}"]
+                summary[f"new drive vs plain SVT-AV1 preset {p} %"] = bd(*curve(peer), *curve(row["egovid"], "new"))
+                summary[f"ingest fps / plain SVT-AV1 preset {p} fps"] = ingest_fps / float(
+                    np.mean([x["fps"] for x in peer])
+                )
             if with_vp9:
                 old = row["egovid-vp9 (today)"]
                 summary["new drive vs today's VP9 joint %"] = bd(*curve(old, "new"), *curve(row["egovid"], "new"))
@@ -260,7 +298,9 @@ def main() -> None:
             results["targets"]["whole archive >= 40 % smaller than today's (day)"] = (
                 day["whole archive vs today's VP9 archive %"] <= -40.0
             )
-    name = "dashcam_bdrate.json" if preset == "realtime" else f"dashcam_bdrate_{preset}.json"
+    tag = "" if preset == "realtime" else f"_{preset}"
+    tag += f"_{joint}" if joint and joint != PRESETS[preset]["joint_codec"] else ""
+    name = f"dashcam_bdrate{tag}.json"
     (folder.parent / name).write_text(json.dumps({"benchmark": "dashcam_bdrate", **results}, indent=1))
     report("dashcam_bdrate", {"sets": per_set, "targets": results.get("targets")})
 

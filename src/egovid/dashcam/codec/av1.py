@@ -44,6 +44,18 @@ def _encoder(pw: int, ph: int, settings: EncoderSettings) -> av.CodecContext:
     return cc
 
 
+def packet(data: bytes) -> av.Packet:
+    """A packet whose buffer FFmpeg owns (a copy of ``data``, zero-padded as FFmpeg's decoders
+    require). ``av.Packet(bytes)`` would lend FFmpeg the Python object (unpadded), and a dav1d
+    worker thread releasing it needs the GIL: when a decoder is dropped mid-stream (a standalone
+    encode stopped because the joint one won), its deallocation holds the GIL while it waits for
+    those workers, and the ingest hangs (seen: ``avcodec_free_context`` → ``dav1d_flush`` against
+    a worker in ``_python_free``)."""
+    pkt = av.Packet(len(data))
+    pkt.update(data)
+    return pkt
+
+
 class _Dav1d:
     """A dav1d decoder giving padded I420 pictures in order."""
 
@@ -52,7 +64,7 @@ class _Dav1d:
 
     def decode(self, pkt: bytes | None) -> list[np.ndarray]:
         try:
-            frames = self.cc.decode(av.Packet(pkt) if pkt is not None else None)
+            frames = self.cc.decode(packet(pkt) if pkt is not None else None)
         except av.error.FFmpegError as exc:
             raise EgovidError(f"dav1d could not decode an AV1 segment: {exc}", "the bitstream is damaged") from None
         return [np.ascontiguousarray(f.to_ndarray(format="yuv420p")) for f in frames]

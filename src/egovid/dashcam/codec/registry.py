@@ -29,13 +29,16 @@ class Backend:
     verify, verify_runs, clock, spool) -> EncodedSegment``; ``decode(layout, packets, first_run,
     baselines, start)`` yields unpadded I420 frames; ``joint``: whether it can code against
     baselines; ``self_test()`` raises when the library does not round-trip and returns a line
-    naming it."""
+    naming it; ``q_offset``: what a joint candidate adds to the archive's ``--q`` (libvpx's 0-63
+    scale) to code at about the same PSNR-Y as libvpx at ``--q`` (standalone SVT-AV1's offset is
+    :data:`egovid.dashcam.ingest.options.AV1_DQ`)."""
 
     name: str
     joint: bool
     encode: Callable[..., segment.EncodedSegment]
     decode: Callable[..., Iterator[np.ndarray]]
     self_test: Callable[[], str]
+    q_offset: int = 0
 
 
 BACKENDS: dict[str, Backend] = {
@@ -43,7 +46,10 @@ BACKENDS: dict[str, Backend] = {
     for b in (
         Backend("vp9", True, segment.encode_segment, segment.decode_runs, vpx.self_test),
         Backend("av1", False, av1.encode_segment, av1.decode_runs, av1.self_test),
-        Backend("aom", True, aom_segment.encode_segment, aom_segment.decode_runs, aom.self_test),
+        # libaom's quantiser q gives about the PSNR-Y of SVT-AV1 at CRF q + 2 (640x360 different-day
+        # drive, experiments/dashcam_aom_joint.py), SVT-AV1's CRF q + 14 that of libvpx at q
+        # (ingest/options.py AV1_DQ): libaom at --q + 12.
+        Backend("aom", True, aom_segment.encode_segment, aom_segment.decode_runs, aom.self_test, q_offset=12),
     )
 }
 
@@ -79,6 +85,11 @@ def decode_segment(
     """The unpadded I420 frames of a whole segment blob from frame ``start``, whatever its codec."""
     lay, off = segment.parse_header(blob)
     return decode_runs(lay, segment.iter_packets(blob, off, lay.n_packets), 0, baselines, start)
+
+
+def joint_codecs() -> tuple[str, ...]:
+    """The backends that can code a piece against the older drive (``--joint-codec``)."""
+    return tuple(b.name for b in BACKENDS.values() if b.joint)
 
 
 def describe() -> str:

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 from egovid.core.errors import EgovidError
 from egovid.dashcam.align import ALIGNERS
+from egovid.dashcam.codec import registry
 from egovid.dashcam.codec.settings import ARCHIVE_DEFAULTS, EncoderSettings
 
 BASELINE_ALIGN = ("none", "gain", "similarity")
@@ -19,6 +20,8 @@ CODECS = ("av1", "vp9")  # what standalone pieces can be stored in
 #: ``codec``/``av1_speed``: the codec of pieces stored standalone (first drives, pieces with no
 #: older drive of their path and light, and joint pieces where the standalone encode is smaller);
 #: the VP9 settings (``realtime``, ``speed``, ...) code the joint candidates.
+#: ``joint_codec``: the codec of the joint candidate (``vp9``: libvpx at ``speed``; ``aom``: AV1 by
+#: libaom at cpu-used ``aom_speed``, its realtime mode where ``realtime``, else good quality).
 PRESETS: dict[str, dict] = {
     # SVT-AV1 preset 10 for standalone pieces; libvpx's realtime deadline at its fastest speed for
     # the joint candidate, two threads sharing rows and two tile columns (one column saves 0.6
@@ -39,6 +42,8 @@ PRESETS: dict[str, dict] = {
         "refine_features": 0,
         "align_every": 2,
         "verify_share": 0.25,
+        "joint_codec": "vp9",
+        "aom_speed": 10,
     },
     # SVT-AV1 preset 8; libvpx's good-quality deadline at its fastest speed, two threads sharing
     # rows and two tile columns: the different-day saving of the archive preset's deadline
@@ -57,8 +62,11 @@ PRESETS: dict[str, dict] = {
         "refine_features": 1000,
         "align_every": 1,
         "verify_share": 1.0,
+        "joint_codec": "vp9",
+        "aom_speed": 6,
     },
-    # SVT-AV1 preset 6; libvpx's good-quality deadline, one thread: the smallest files.
+    # SVT-AV1 preset 6; the joint candidate in AV1 by libaom's good-quality mode at cpu-used 6 (its
+    # fastest), one thread: the smallest files (docs/dashcam.md, "Codecs").
     "archive": {
         "codec": "av1",
         "av1_speed": 6,
@@ -72,6 +80,8 @@ PRESETS: dict[str, dict] = {
         "refine_features": 1000,
         "align_every": 1,
         "verify_share": 1.0,
+        "joint_codec": "aom",
+        "aom_speed": 6,
     },
 }
 DEFAULT_PRESET = "realtime"
@@ -110,6 +120,10 @@ class IngestOptions:
     refinement; ``refine_features``: its ORB key points per frame (0: the search's own, 500);
     ``align_every``: the ORB aligners search and refine every n-th frame, the matches of the
     frames between interpolated (1: every frame);
+    ``joint_codec``: the codec of a piece's joint candidate, coded against the older drive
+    (``vp9`` | ``aom``: AV1 by libaom, at libaom quantiser ``q`` +
+    :attr:`~egovid.dashcam.codec.registry.Backend.q_offset`); ``aom_speed``: its libaom cpu-used
+    (0-9 in good quality, 0-10 with ``realtime``);
     ``preset``: the name of the preset these came from (recorded with each segment).
     """
 
@@ -132,6 +146,8 @@ class IngestOptions:
     refine_radius: int = _D["refine_radius"]
     refine_features: int = _D["refine_features"]
     align_every: int = _D["align_every"]
+    joint_codec: str = _D["joint_codec"]
+    aom_speed: int = _D["aom_speed"]
     preset: str | None = DEFAULT_PRESET
 
     @classmethod
@@ -149,6 +165,12 @@ class IngestOptions:
         self.encoder_settings(30.0)  # EncoderSettings checks the ranges: q, speed, gop, random access, ...
         if self.codec not in CODECS:
             raise EgovidError(f"unknown codec {self.codec!r}", f"choose one of {', '.join(CODECS)}")
+        if self.joint_codec not in registry.joint_codecs():
+            raise EgovidError(
+                f"{self.joint_codec!r} cannot code against the older drive",
+                f"choose one of {', '.join(registry.joint_codecs())}",
+            )
+        self.joint_settings(30.0)
         self.standalone_settings(30.0)
         if self.aligner not in ALIGNERS:
             raise EgovidError(f"unknown aligner {self.aligner!r}", f"choose one of {', '.join(ALIGNERS)}")
@@ -175,7 +197,8 @@ class IngestOptions:
         return lambda i: share >= 1.0 or i in (0, n_runs - 1) or rng.random() < share
 
     def encoder_settings(self, fps: float) -> EncoderSettings:
-        """The VP9 settings of the joint candidate (and of standalone pieces with ``codec`` vp9)."""
+        """The VP9 settings: the joint candidate's with ``joint_codec`` vp9 (:meth:`joint_settings`)
+        and standalone pieces' with ``codec`` vp9."""
         return EncoderSettings(
             q=self.q,
             speed=self.speed,
@@ -188,6 +211,26 @@ class IngestOptions:
             tile_columns=self.tile_columns,
             row_mt=self.row_mt,
             start_speed=self.start_speed,
+        )
+
+    def joint_settings(self, fps: float) -> EncoderSettings:
+        """The settings of a piece's joint candidate (``joint_codec``): :meth:`encoder_settings`
+        for VP9; libaom at ``q`` + its offset, cpu-used ``aom_speed``, the same threading and
+        random-access period otherwise (low delay: no anchors)."""
+        vp9 = self.encoder_settings(fps)
+        b = registry.backend(self.joint_codec)
+        if b.name == vp9.codec:
+            return vp9
+        return EncoderSettings(
+            q=min(63, self.q + b.q_offset),
+            speed=self.aom_speed,
+            codec=b.name,
+            realtime=self.realtime,
+            fps=vp9.fps,
+            refresh=self.refresh,
+            threads=self.threads,
+            tile_columns=self.tile_columns,
+            row_mt=self.row_mt,
         )
 
     def standalone_settings(self, fps: float) -> EncoderSettings:

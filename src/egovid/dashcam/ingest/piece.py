@@ -413,7 +413,7 @@ class _Referee:
 class _Encoders:
     """The piece's encoders, each in its own thread on its own pipe from the producer: the stored
     candidate(s) — the standalone encode (``opts.codec``) and, where the piece has an older drive,
-    the joint VP9 encode — each spooled to a temporary file."""
+    the joint encode (``opts.joint_codec``) — each spooled to a temporary file."""
 
     def __init__(self, run: _PieceRun, opts: IngestOptions, fps: float, size, clock, progress) -> None:
         self.jobs: dict[str, dict] = {}
@@ -440,7 +440,7 @@ class _Encoders:
         at = DECIDE_RUNS * opts.refresh
         self.referee = _Referee(self.jobs, at) if joint and not opts.measure_savings and 0 < at < run.n else None
         if joint:
-            st = opts.encoder_settings(fps)
+            st = opts.joint_settings(fps)
             kw = {"verify": opts.verify, "verify_runs": verified, "progress": once}
             self._add("joint", "encode", st, w, h, kw)
         st = opts.standalone_settings(fps)
@@ -507,7 +507,7 @@ def encode_piece(
     one decode pass, positioned at the piece's first frame); the blob goes to ``source.blobs``.
 
     A piece without an older drive is coded standalone (``opts.codec``); one with an older drive
-    is coded both ways at once, joint (VP9 with the baseline) and standalone, and the smaller at
+    is coded both ways at once, joint (``opts.joint_codec`` with the baseline) and standalone, and the smaller at
     equal PSNR-Y is stored (:func:`keep_joint`; the reason is recorded in the segment's
     ``choice``). ``clock`` accumulates busy seconds per stage (decode, analyse, reference, align,
     baseline, encode, verify, standalone) and the encoders' waits."""
@@ -562,6 +562,7 @@ def _encoded(run, opts, enc, sha, kept, why, encoders, alone, joint, t_start) ->
         "verified_runs": encoders.followed if opts.verify and kept == (run.ref is not None) else [],
         "aligner": opts.aligner,
         "choice": why,
+        "joint_codec": encoders.jobs["joint"]["settings"].codec if "joint" in encoders.jobs else None,
         "joint_bytes": joint.nbytes if joint is not None else None,
         "joint_psnr_y": joint.psnr_y if joint is not None else None,
         "standalone_bytes": alone.nbytes if alone is not None else None,

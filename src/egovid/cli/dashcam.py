@@ -527,7 +527,7 @@ def _readings_figures(ar, rep: dict, folder: Path) -> None:
     """Draw the recorded readings of the report's drives into ``folder``; each figure's path goes
     into its drive's ``readings`` summary."""
     from egovid.dashcam.archive.fleetstore import live_drives
-    from egovid.dashcam.readings import draw_report_figures
+    from egovid.dashcam.readings_figures import draw_report_figures
 
     drawn = draw_report_figures(ar, folder, live_drives(ar.catalogue))
     for d in rep["drives"]:

@@ -82,6 +82,41 @@ def test_the_same_card_again_is_a_no_op_that_says_so(card):
     assert _rows(root) == before
 
 
+HEAVY = ("cv2", "scipy", "numba", "av", "egovid.dashcam.ingest")  # the ingest pipeline and what it loads
+
+
+def _imported(stderr: str) -> set[str]:
+    """The modules a run of ``python -X importtime`` imported (its stderr), by full name."""
+    return {ln.rsplit("|", 1)[1].strip() for ln in stderr.splitlines() if ln.startswith("import time:")} - {
+        "imported package"
+    }
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("verify", [False, True])
+def test_the_same_card_again_does_not_load_the_ingest_pipeline(card, tmp_path, verify):
+    """A card synced again is answered by the light first step (egovid.dashcam.archive.identity):
+    the decoders, numerics and codecs of the ingest are never imported; --verify-known (full
+    SHA-256 of every file) answers the same."""
+    root = card["root"]
+    before = _rows(root)
+    out = tmp_path / "report.json"
+    extra = ["--verify-known"] if verify else []
+    r = run_cli("dashcam", "ingest", root, card["card1"], "--gps", card["gps"], "--json", out, *extra,
+                env={"PYTHONPROFILEIMPORTTIME": "1"})  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "2 file(s) already archived" in r.stdout and "nothing new" in r.stdout, r.stdout
+    mods = _imported(r.stderr)
+    assert "egovid.dashcam.archive.identity" in mods  # the importtime listing is what it should be
+    loaded = sorted(m for m in mods if m.split(".")[0] in HEAVY or m.startswith(HEAVY[-1]))
+    assert loaded == [], loaded
+    rep = json.loads(out.read_text())
+    assert rep["drives"] == [] and rep["failed"] == []
+    assert sorted(Path(x["file"]).name for x in rep["skipped"]) == sorted(f.name for f in card["files"][:2])
+    assert all(x["reason"].startswith("already in the archive") for x in rep["skipped"])
+    assert _rows(root) == before
+
+
 @pytest.mark.slow
 def test_a_kill_mid_append_leaves_the_archive_as_it_was(card, tmp_path):
     """kill -9 once the append has written a bitstream, before its commit (held back by a write

@@ -181,6 +181,13 @@ def ingest(
         "without either, this machine). The workers must reach the videos, the catalogue and the blob store.",
     ),
     json_out: Path = typer.Option(None, "--json", help="Write the ingest report(s) as JSON."),
+    verify_known: bool = typer.Option(
+        False,
+        "--verify-known",
+        help="Read a file the archive recognises (by its size and a sampled digest: its first and last MiB "
+        "and 32 blocks between, docs/dashcam.md) whole and compare its SHA-256 too, as a file edited in place "
+        "outside the sampled blocks would otherwise pass for the archived one. Reads the whole card.",
+    ),
 ) -> None:
     """Add drives: split each into per-path sequences, pick older drives of the same path and light,
     align them frame by frame, and store each drive compressed against them.
@@ -191,11 +198,11 @@ def ingest(
     or a Dask cluster with --scheduler), a drive on a road another one of the batch covers after
     that one is in (so it can use it). Each drive is added in one transaction: a failure or a
     crash changes nothing for that drive. Files that cannot be used are listed with the reason.
+    Files the archive holds already (by content, whatever their names) are skipped; a card that
+    holds nothing new is answered before the ingest pipeline is even loaded.
     """
     from egovid.cli import validate
-    from egovid.core.engine import EngineConfig, scheduler_address
     from egovid.core.files import atomic_write_text
-    from egovid.dashcam import ingest as library
 
     validate.number(gps_offset, "--gps-offset", lo=-7 * 86400, hi=7 * 86400, unit="s")
     validate.number(tz_offset, "--tz-offset", lo=-14, hi=14, unit="hours")
@@ -209,6 +216,12 @@ def ingest(
             validate.input_file(v, "video")
     log = validate.gps_input(gps) if gps is not None else None
     validate.outputs(videos, (json_out, validate.JSON, "--json"))
+    single = len(videos) == 1 and not videos[0].is_dir()  # one file named: its problems are errors even when known
+    if name is None and start_utc is None and not single and _nothing_new(ar, videos, verify_known, json_out):
+        return
+    from egovid.core.engine import EngineConfig, scheduler_address
+    from egovid.dashcam import ingest as library
+
     opts = library.IngestOptions.from_preset(
         preset,
         q=q,
@@ -236,6 +249,7 @@ def ingest(
             lock_events=lock_events,
             options=opts,
             engine=engine,
+            verify_known=verify_known,
             hooks=library.IngestHooks(
                 progress=cb,
                 skipped=lambda path, why: err_console.print(f"skipped {path}: {why}"),
@@ -245,11 +259,34 @@ def ingest(
         )
     if json_out is not None:
         atomic_write_text(json_out, json.dumps(result.to_dict(), indent=1, default=str))
-    if result.known:
-        console.print(f"{result.known} file(s) already archived (same content), skipped")
-    if result.nothing_new:  # the same card again (a sync job): not a failure (the rest is listed above)
-        console.print("nothing new: the drives of these videos are already in the archive")
+    _say_known(result.known, result.nothing_new)
     result.check()
+
+
+def _say_known(known: int, nothing_new: bool) -> None:
+    """The ingest's last words on the files the archive held already."""
+    if known:
+        console.print(f"{known} file(s) already archived (same content), skipped")
+    if nothing_new:  # the same card again (a sync job): not a failure (the rest is listed above)
+        console.print("nothing new: the drives of these videos are already in the archive")
+
+
+def _nothing_new(ar, videos: list[Path], verify: bool, json_out: Path | None) -> bool:
+    """The light first step of an ingest: when the archive holds every input file already (by
+    content, :func:`egovid.dashcam.archive.identity.all_known`), say so (and write the JSON report
+    the ingest would) and return True, without loading the ingest pipeline (its decoders, aligners
+    and codecs take seconds to import); False: something may be new, the ingest proper decides."""
+    from egovid.core.files import atomic_write_text
+    from egovid.dashcam.archive.identity import all_known, already_in
+
+    hits = all_known(ar, videos, verify=verify)
+    if hits is None:
+        return False
+    if json_out is not None:  # as IngestResult.to_dict writes a batch with nothing added
+        skipped = [{"file": str(f), "reason": already_in(k)} for f, k in hits]
+        atomic_write_text(json_out, json.dumps({"drives": [], "failed": [], "skipped": skipped}, indent=1))
+    _say_known(len(hits), True)
+    return True
 
 
 def _print_outcome(outcome) -> None:

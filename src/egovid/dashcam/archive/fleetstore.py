@@ -17,14 +17,17 @@ first time an archive is opened by an egovid that has them, so archives made bef
   chunk's line as a geometry with a GiST index on its geography (so ``--near`` is an ``ST_DWithin``
   in metres on the server);
 * ``file_digests`` (version 2): what every ingested file was, by content (SHA-256 and size of its
-  bytes) with its name only as a label, and the drive and part it became (the drive cleared when
-  a forget purges it: the file stays known, so syncing the card again does not bring it back);
+  bytes; from version 3 also its sampled digest, :mod:`egovid.dashcam.archive.identity`, by which a
+  card synced again is recognised without reading it whole) with its name only as a label, and the
+  drive and part it became (the drive cleared when a forget purges it: the file stays known, so
+  syncing the card again does not bring it back);
 * ``drive_channels`` (version 2): the other cameras of a multi-camera drive: each is a drive row of
   its own (its segments coded against the same channel of older drives), hidden from the user's
   lists and tied to the drive it belongs to (its *primary*).
 
-Archives of version 1 are migrated to 2 the first time a writable catalogue is opened; drives
-ingested before have no digests (their files are known by the drive's name, as before).
+Archives of version 1 are migrated to 3 (2 to 3) the first time a writable catalogue is opened;
+drives ingested before have no digests (their files are known by the drive's name, as before),
+files ingested before version 3 no sampled digest (they are recognised by their full digest).
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from egovid.dashcam.archive.catalogue import (
 )
 from egovid.dashcam.route.channels import channel_rank
 
-FLEET_SCHEMA = 2
+FLEET_SCHEMA = 3
 CHUNK = 32  # fixes per spatial-index entry
 
 _TABLES = """
@@ -72,8 +75,9 @@ CREATE TABLE IF NOT EXISTS drive_tracks (
 _TABLES_V2 = """
 CREATE TABLE IF NOT EXISTS file_digests (
   id {ID}, sha256 TEXT NOT NULL, bytes {REF} NOT NULL, name TEXT NOT NULL, drive_id {REF} REFERENCES drives(id),
-  part INTEGER, channel TEXT);
+  part INTEGER, channel TEXT, sample TEXT);
 CREATE INDEX IF NOT EXISTS file_digests_sha ON file_digests(sha256);
+CREATE INDEX IF NOT EXISTS file_digests_sample ON file_digests(sample);
 CREATE INDEX IF NOT EXISTS file_digests_drive ON file_digests(drive_id);
 CREATE TABLE IF NOT EXISTS drive_channels (
   drive_id {REF} PRIMARY KEY REFERENCES drives(id), primary_id {REF} NOT NULL REFERENCES drives(id),
@@ -245,9 +249,12 @@ class FleetStore:
             v2 = _TABLES_V2.format(**types)
             if version == 0:
                 self._create_v1(use_postgis, v2)
-            else:  # 1 -> 2
+            elif version == 1:  # 1 -> 3
                 for stmt in (x for x in v2.split(";") if x.strip()):
                     self._q(stmt)
+            else:  # 2 -> 3: the sampled digest of files ingested from now on
+                self._q("ALTER TABLE file_digests ADD COLUMN sample TEXT")
+                self._q("CREATE INDEX IF NOT EXISTS file_digests_sample ON file_digests(sample)")
             self.cat.set_meta("fleet_schema", str(FLEET_SCHEMA))
 
     def _create_v1(self, use_postgis: bool, v2: str) -> None:
@@ -467,12 +474,33 @@ class FleetStore:
         return [tuple(r) for r in rows]
 
     # -- content identity and channels (fleet tables version 2) ---------------------------------
-    def record_file(self, drive_id: int, part: int, sha256: str, size: int, name: str, channel: str) -> None:
-        """Remember an ingested file by its content (inside the ingest's transaction)."""
-        self._q(
-            "INSERT INTO file_digests(sha256, bytes, name, drive_id, part, channel) VALUES(?,?,?,?,?,?)",
-            (sha256, int(size), name, drive_id, part, channel),
+    def record_file(
+        self, drive_id: int, part: int, sha256: str, size: int, name: str, channel: str, sample: str | None = None
+    ) -> None:
+        """Remember an ingested file by its content (inside the ingest's transaction): full SHA-256,
+        size in bytes and sampled digest (:mod:`egovid.dashcam.archive.identity`)."""
+        if fleet_version(self.cat) >= 3:
+            self._q(
+                "INSERT INTO file_digests(sha256, bytes, name, drive_id, part, channel, sample) VALUES(?,?,?,?,?,?,?)",
+                (sha256, int(size), name, drive_id, part, channel, sample),
+            )
+        else:
+            self._q(
+                "INSERT INTO file_digests(sha256, bytes, name, drive_id, part, channel) VALUES(?,?,?,?,?,?)",
+                (sha256, int(size), name, drive_id, part, channel),
+            )
+
+    def known_by_sample(self, sample: str, size: int) -> list[KnownFile]:
+        """The files ingested before whose sampled digest and size are these (files of archives
+        before version 3 have none: :meth:`known_files` finds them)."""
+        if fleet_version(self.cat) < 3:
+            return []
+        rows = self._q(
+            "SELECT f.name, f.drive_id, d.name, f.part, f.channel FROM file_digests f LEFT JOIN drives d "
+            "ON d.id = f.drive_id WHERE f.sample = ? AND f.bytes = ? ORDER BY f.id",
+            (sample, int(size)),
         )
+        return [KnownFile(r[0], None if r[1] is None else int(r[1]), r[2], r[3], r[4]) for r in rows]
 
     def known_files(self, sha256: str, size: int) -> list[KnownFile]:
         """The files ingested before with these bytes (a file copied under another name too)."""

@@ -3,8 +3,8 @@ of archived trips that new loop files may continue.
 
 :class:`Archived` answers :func:`~egovid.dashcam.ingest.sources.plan_ingest`:
 
-* :meth:`Archived.known`: the file the archive ingested with these bytes (its digest,
-  :mod:`egovid.dashcam.ingest.identity`), whatever its name was; such a file is left out before it
+* :meth:`Archived.identify`: the file the archive ingested with these bytes (by its sampled and
+  full digests, :mod:`egovid.dashcam.archive.identity`), whatever its name was; such a file is left out before it
   is examined (no probe, no decode);
 * :meth:`Archived.clock_of`: the UTC start and GPS track of such a file (a file of another camera
   recorded with it takes them);
@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from egovid.dashcam.archive.fleetstore import FleetStore, KnownFile
+from egovid.dashcam.archive.identity import FileDigest, identify
 from egovid.dashcam.archive.store import Archive
-from egovid.dashcam.ingest.identity import FileDigest
 from egovid.dashcam.route.tracks import GpsTrack, finish_track
 from egovid.dashcam.route.trips import FileInfo
 
@@ -53,18 +53,22 @@ def tail_path(name: str) -> Path:
 class Archived:
     """The archive's answers to the examination of an ingest's files (see the module docstring)."""
 
-    def __init__(self, archive: Archive, *, dedup: bool = True) -> None:
+    def __init__(self, archive: Archive, *, dedup: bool = True, verify: bool = False) -> None:
+        """``dedup`` False: every file is new (the user named the drive, a deliberate second copy);
+        ``verify``: a file its sampled digest recognises is hashed whole and compared as well
+        (``--verify-known``)."""
         self.archive = archive
         self.store = FleetStore(archive.catalogue)
         self.dedup = dedup
+        self.verify = verify
 
-    def known(self, digest: FileDigest) -> KnownFile | None:
-        """The first file ingested with these bytes (None: a new file, or ``dedup`` is off: the
-        user named the drive, a deliberate second copy)."""
+    def identify(self, path: Path) -> tuple[KnownFile | None, FileDigest | None]:
+        """The first file ingested with the bytes of ``path`` (None: a new file, or ``dedup`` is
+        off) and the file's full digest where it was taken (see
+        :func:`~egovid.dashcam.archive.identity.identify`)."""
         if not self.dedup:
-            return None
-        hits = self.store.known_files(digest.sha256, digest.size)
-        return hits[0] if hits else None
+            return None, None
+        return identify(self.store, path, verify=self.verify)
 
     def clock_of(self, known: KnownFile) -> tuple[float, GpsTrack] | None:
         """UTC start (seconds) of an archived file and its drive's GPS track; None when its drive is

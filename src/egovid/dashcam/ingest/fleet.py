@@ -29,6 +29,7 @@ from egovid.core.errors import EgovidError
 from egovid.dashcam.archive import readings as readings_table
 from egovid.dashcam.archive.catalogue import Catalogue
 from egovid.dashcam.archive.fleetstore import DriveMeta, DrivePart, FleetStore
+from egovid.dashcam.archive.identity import ALREADY_IN
 from egovid.dashcam.archive.readings import DriveReadings, join
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec.streams import archive_streams, concat_streams
@@ -38,8 +39,6 @@ from egovid.dashcam.ingest.sources import FileSource, IngestPlan
 from egovid.dashcam.readings import from_tesla
 from egovid.dashcam.route.tracks import GpsTrack, finish_track
 from egovid.dashcam.route.trips import Trip
-
-ALREADY_IN = "already in the archive"  # why a file whose drive was ingested before is skipped
 
 
 @dataclass
@@ -80,6 +79,7 @@ class FileRow:
     size: int
     name: str
     channel: str
+    sample: str | None = None  # sampled digest (egovid.dashcam.archive.identity)
 
 
 def _record_files(store: FleetStore, drive_id: int, files: list[FileRow], unique: bool = True) -> None:
@@ -89,7 +89,7 @@ def _record_files(store: FleetStore, drive_id: int, files: list[FileRow], unique
     for f in files:
         if unique and any(k.drive_id is not None for k in store.known_files(f.sha256, f.size)):
             raise EgovidError(f"{f.name} is {ALREADY_IN} (another ingest added it meanwhile)", "nothing to do")
-        store.record_file(drive_id, f.part, f.sha256, f.size, f.name, f.channel)
+        store.record_file(drive_id, f.part, f.sha256, f.size, f.name, f.channel, f.sample)
 
 
 @dataclass
@@ -262,7 +262,7 @@ def _new_name(
 
 
 def _file_rows(srcs: list[FileSource], first_part: int = 0) -> list[FileRow]:
-    return [FileRow(first_part + i, s.digest.sha256, s.digest.size, s.path.name, s.channel)
+    return [FileRow(first_part + i, s.digest.sha256, s.digest.size, s.path.name, s.channel, s.digest.sample)
             for i, s in enumerate(srcs) if s.digest is not None]  # fmt: skip
 
 

@@ -11,9 +11,10 @@ For every file :func:`examine` finds:
 * its clock (:mod:`egovid.dashcam.route.clock`): GPS time, else the camera clock checked against the log;
 * its kind (drive, event, parking) and camera (front, rear, …) from its folder and name.
 
-:func:`plan_ingest` first takes each file's content digest (:mod:`egovid.dashcam.ingest.identity`)
-and leaves out, unexamined, the files the archive holds already (a card synced again costs the
-reading of its bytes, nothing more). A file of another camera of a multi-camera dashcam
+:func:`plan_ingest` first recognises each file by its content (:mod:`egovid.dashcam.archive.identity`:
+a sampled digest, the full one for a file it does not recognise) and leaves out, unexamined, the
+files the archive holds already (a card synced again costs the reading of a few MiB per file).
+A file of another camera of a multi-camera dashcam
 (:mod:`egovid.dashcam.route.channels`: the rear file of the same moment as a front file) is a
 *companion*: it takes the clock and GPS of the primary camera's file of its moment (in this
 ingest, or archived before), so the channels of a drive are in step; it is examined on its own
@@ -40,7 +41,7 @@ from egovid.core.errors import EgovidError
 from egovid.core.times import creation_time_utc
 from egovid.core.video import VideoInfo, frame_times, probe
 from egovid.dashcam.archive.fleetstore import KnownFile
-from egovid.dashcam.ingest.identity import FileDigest, file_digest
+from egovid.dashcam.archive.identity import FileDigest, already_in, file_digest
 from egovid.dashcam.ingest.stages import check_frame_size
 from egovid.dashcam.route.camera_gps import tesla_rows
 from egovid.dashcam.route.channels import channel_rank, file_camera
@@ -210,22 +211,16 @@ def _tesla_gps(path: Path, info: VideoInfo, clock: ClockOptions, tel: TeslaTelem
 
 class ArchivedFiles(Protocol):
     """What the examination asks the archive (:class:`~egovid.dashcam.ingest.attach.Archived`):
-    whether it holds a file already (by content), for such a file its UTC start and its drive's
+    whether it holds a file already (by content; with the file's full digest where it was taken),
+    for such a file its UTC start and its drive's
     GPS track (a companion file recorded with it takes both), and the last files of archived
     drives that end between two UTC times (new loop files may continue them)."""
 
-    def known(self, digest: FileDigest) -> KnownFile | None: ...
+    def identify(self, path: Path) -> tuple[KnownFile | None, FileDigest | None]: ...
 
     def clock_of(self, known: KnownFile) -> tuple[float, GpsTrack] | None: ...
 
     def tails(self, t0: float, t1: float) -> dict[Path, tuple[FileInfo, object]]: ...
-
-
-def already_in(known: KnownFile) -> str:
-    """Why a file the archive holds is left out (:data:`~egovid.dashcam.ingest.fleet.ALREADY_IN` …)."""
-    where = f"drive {known.drive_name!r}" if known.drive_name else "a drive forgotten since"
-    same = f", as {known.name}" if known.name else ""
-    return f"already in the archive ({where}{same}; same content)"
 
 
 def examine_companion(
@@ -317,8 +312,9 @@ def plan_ingest(
     for f in files:
         if archived is None:
             continue
-        digests[f] = file_digest(f)
-        hit = archived.known(digests[f])
+        hit, digest = archived.identify(f)
+        if digest is not None:
+            digests[f] = digest
         if hit is not None:
             if single:  # one file named: its problems are still errors (checked before "nothing to do")
                 examine(f, log, clock, batch=False)
@@ -332,7 +328,7 @@ def plan_ingest(
         try:
             src = _companion(f, primary_of.get(f), sources, known, archived)
             sources[f] = src if src is not None else examine(f, log, clock, batch=not single)
-            sources[f].digest = digests.get(f)
+            sources[f].digest = digests[f] if f in digests else file_digest(f) if archived is not None else None
         except EgovidError as e:
             if single:
                 raise

@@ -132,6 +132,7 @@ def ingest_videos(
     options: IngestOptions | None = None,
     engine: EngineConfig | None = None,
     hooks: IngestHooks | None = None,
+    verify_known: bool = False,
 ) -> IngestResult:
     """Ingest dashcam videos (files, or folders searched recursively) into ``archive``.
 
@@ -139,7 +140,9 @@ def ingest_videos(
     own, see :mod:`~egovid.dashcam.ingest.sources`); ``clock``: the user's help with the camera
     clock; ``name``: the drive's name (one drive only); ``join``/``max_gap``: loop files at most
     ``max_gap`` seconds apart make one trip; ``lock_events``: event files are locked as they come
-    in; ``engine``: where a batch runs (default: this process, one drive after another).
+    in; ``engine``: where a batch runs (default: this process, one drive after another);
+    ``verify_known``: a file the archive recognises by its sampled digest is hashed whole to be sure
+    (:mod:`egovid.dashcam.archive.identity`).
 
     One drive on this machine is ingested here and any problem is an error; several drives (or a
     Dask scheduler) run as a batch, oldest first, and a drive that fails is listed in the result
@@ -155,7 +158,8 @@ def ingest_videos(
         join=join,
         max_gap=max_gap,
         on_file=lambda k, n: hooks.progress("examine", k, n),
-        archived=Archived(archive, dedup=name is None),  # --name: a drive of that name, even of known files
+        # --name: a drive of that name, even of known files
+        archived=Archived(archive, dedup=name is None, verify=verify_known),
     )
     prepared = prepare(archive, plan, name=name, lock_events=lock_events)
     for path, why in plan.skipped:

@@ -23,11 +23,10 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from egovid.core.errors import EgovidError
 from egovid.core.video import Frame, iter_frames
 from egovid.dashcam.route.channels import file_camera
+from egovid.dashcam.route.inputs import VIDEO_SUFFIXES, expand_inputs  # noqa: F401 (the names importers use)
 
-VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".ts", ".m4v", ".mts", ".webm")
 KINDS = ("drive", "event", "parking")
 MAX_GAP_S = 10.0
 OVERLAP_S = 1.0
@@ -101,32 +100,6 @@ def file_channel(path: str | os.PathLike) -> str:
     when the name does not say. Files of different cameras are never joined into one trip (they
     become the channels of one drive: :func:`egovid.dashcam.ingest.fleet.prepare`)."""
     return file_camera(path).channel
-
-
-def expand_inputs(paths: Iterable[str | os.PathLike]) -> list[Path]:
-    """The video files named, folders searched recursively (hidden entries skipped), in name order
-    within each folder; a path named twice counts once. A folder without videos is an error."""
-    out: list[Path] = []
-    seen: set[Path] = set()
-    for raw in paths:
-        p = Path(raw)
-        found = [p]
-        if p.is_dir():
-            found = sorted(
-                (f for f in p.rglob("*") if f.is_file() and f.suffix.lower() in VIDEO_SUFFIXES
-                 and not any(x.startswith(".") for x in f.relative_to(p).parts)),
-                key=lambda f: str(f.relative_to(p)).lower(),
-            )  # fmt: skip
-            if not found:
-                raise EgovidError(
-                    f"folder {p} holds no videos", f"give videos ({', '.join(VIDEO_SUFFIXES)}) or folders of them"
-                )
-        for f in found:
-            key = f.resolve()
-            if key not in seen:
-                seen.add(key)
-                out.append(f)
-    return out
 
 
 @dataclass(frozen=True)

@@ -153,7 +153,12 @@ def test_a_worker_killed_mid_ingest_is_retried_and_the_archive_stays_consistent(
             )
         pytest.fail(f"the batch did not end within 300 s of the kill; done: {results}; scheduler: {states}")
     assert sorted(r.name for r in results) == ["1-main", "3-main"]
-    assert all(r.report is not None for r in results), [r.error for r in results]
+    # The kill can land after the killed attempt committed its drive (it holds the lock until the
+    # task returns): the retry then finds the drive archived and refuses to store it twice, which
+    # is the property (checked below: once each, bit-exact); anything else is a failure.
+    assert all(r.report is not None or "is already in the archive" in str(r.error) for r in results), [
+        r.error for r in results
+    ]
     ar = open_archive(root)
     assert sorted(d.name for d in ar.catalogue.drives()) == ["1-main", "3-main"]  # once each
     used = ar.catalogue.blob_names()

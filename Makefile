@@ -49,8 +49,9 @@ lint: $(STAMP)
 
 # Two pytest workers, a test file each (--dist loadfile keeps a file's shared fixtures in one
 # process): one worker often waits on a subprocess, a server or the encoder while the other
-# computes. 692 tests: 15.1 min of pytest, 17 min for make test from a clean clone (2026-12-03, the
-# 2-core machine). --durations names the slowest, so a CI log says where the time went.
+# computes. 749 tests: 8.0 min of pytest, 8.7 min for make test from a clean clone with ../shared
+# beside it (2026-12-04, the 2-core machine, quiet; 17.7 min with others' benchmarks at load 20-27).
+# --durations names the slowest, so a CI log says where the time went.
 test: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks experiments
 	$(BIN)/pytest -q -n 2 --dist loadfile --durations=25

@@ -43,7 +43,8 @@ def test_default_cases_cover_what_the_issue_lists():
     assert len({c.name for c in cases}) == len(cases)
 
 
-def test_truth_is_intended_plus_shake_and_the_gyro_replay_keeps_its_amplitude():
+def test_truth_is_intended_plus_shake_and_the_gyro_replay_keeps_its_amplitude(karma_clip):
+    # karma_clip: the gyro replayed is that clip's (skipped where ../shared is not beside the checkout)
     c = Case("t", "walk", "gyro-hero5", shake_deg=0.3, seconds=3.0)
     tr = case_truth(c)
     assert np.allclose(tr.angles, tr.intended + tr.shake)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import glob
 import os
 import pwd
@@ -17,6 +18,20 @@ import pytest
 
 from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
+
+#: Seconds after which a test's process is stopped with every thread's stack printed, by
+#: faulthandler's own C thread: pytest-timeout's thread method needs the GIL, so a hang inside a C
+#: library that holds it (a codec's teardown) would otherwise hold CI to its limit with nothing
+#: printed. Above pytest-timeout's 900 s, so that one speaks first whenever it can.
+HANG_WATCHDOG_S = 1200
+
+
+@pytest.fixture(autouse=True)
+def _hang_watchdog():
+    """Every test runs under :data:`HANG_WATCHDOG_S`: a hang becomes a crashed worker with stacks."""
+    faulthandler.dump_traceback_later(HANG_WATCHDOG_S, exit=True)
+    yield
+    faulthandler.cancel_dump_traceback_later()
 
 
 def run_cli(

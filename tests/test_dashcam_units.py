@@ -16,6 +16,7 @@ from egovid.dashcam.archive.catalogue import PostgresCatalogue, SqliteCatalogue
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.codec import vpx
 from egovid.dashcam.codec.settings import EncoderSettings
+from egovid.dashcam.ingest.piece import DB_PER_HALVING, keep_joint
 from egovid.dashcam.route.paths import match_path, resample, split_drive, split_points
 from egovid.dashcam.route.tracks import project, read_track
 
@@ -551,3 +552,17 @@ def test_a_track_covering_less_than_80_percent_of_the_video_is_refused():
     check_coverage(track, t[10] + np.arange(0.0, 100.1, 0.5), "v.mp4", "log.gpx")  # 90 of 100 s
     with pytest.raises(EgovidError, match=r"covers 50% of video v\.mp4"):
         check_coverage(track, t[50] + np.arange(0.0, 100.1, 0.5), "v.mp4", "log.gpx")
+
+
+def test_the_joint_or_standalone_choice_compares_at_equal_quality_by_hand():
+    """keep_joint moves the joint bytes to the standalone's PSNR-Y along 2 dB per halving: a joint
+    encode of the same size and higher quality always wins; one of lower quality costs more."""
+    assert DB_PER_HALVING == 2.0
+    assert keep_joint((1000, 36.0), (1000, 35.0))[0]  # same bytes, 1 dB better: joint
+    assert not keep_joint((1000, 34.0), (1000, 35.0))[0]  # same bytes, 1 dB worse: standalone
+    # 1200 B at 38 dB = 600 B at 36 dB (one halving per 2 dB) < 700 B: joint, though larger
+    kept, why = keep_joint((1200, 38.0), (700, 36.0))
+    assert kept and "= 600 B at 36.00 dB" in why
+    # 500 B at 34 dB = 1000 B at 36 dB > 900 B: standalone, though smaller
+    kept, why = keep_joint((500, 34.0), (900, 36.0))
+    assert not kept and "= 1000 B at 36.00 dB" in why

@@ -372,10 +372,11 @@ DECIDE_RUNS = 2
 
 def keep_joint(joint: tuple[int, float], alone: tuple[int, float]) -> tuple[bool, str]:
     """Whether the joint encode of a piece is the one to store, and why, given (bytes, PSNR-Y) of
-    each: the smaller at equal PSNR-Y (the joint bytes scaled by 2^(ΔPSNR / :data:`DB_PER_HALVING`)
-    to the standalone's quality)."""
+    each: the smaller at equal PSNR-Y. The joint bytes are moved along the rate curve to the
+    standalone's quality, ``jb · 2^((sp − jp) / DB_PER_HALVING)``: a joint encode of higher PSNR-Y
+    would need fewer bytes at the standalone's quality, one of lower PSNR-Y more."""
     (jb, jp), (sb, sp) = joint, alone
-    equal = jb * 2.0 ** ((jp - sp) / DB_PER_HALVING)
+    equal = jb * 2.0 ** ((sp - jp) / DB_PER_HALVING)
     kept = equal < sb
     return kept, (
         f"joint {jb} B at {jp:.2f} dB (= {equal:.0f} B at {sp:.2f} dB) vs standalone {sb} B at {sp:.2f} dB: "
@@ -386,7 +387,12 @@ def keep_joint(joint: tuple[int, float], alone: tuple[int, float]) -> tuple[bool
 class _Referee:
     """The early choice between a piece's joint and standalone encodes: when both have coded the
     first ``at`` frames (:data:`DECIDE_RUNS` runs), :func:`keep_joint` on those frames, and the
-    other encoder is stopped (its pipe dropped; the producer stops aligning if it was the joint)."""
+    other encoder is stopped (its pipe dropped; the producer stops aligning if it was the joint).
+
+    An SVT-AV1 encoder is never stopped: its context freed with frames in flight and no end of
+    stream can block for ever in ``svt_av1_enc_deinit`` ("deinit called without sending EOS!")
+    while the GIL is held, which froze a whole test run once. A losing SVT-AV1 encode runs to
+    the end and is discarded."""
 
     def __init__(self, jobs: dict, at: int) -> None:
         self.jobs, self.at = jobs, at
@@ -405,7 +411,8 @@ class _Referee:
                     kept, why = keep_joint(self.seen["joint"], self.seen["standalone"])
                     self.loser = "standalone" if kept else "joint"
                     self.why = f"first {frames} frames: {why}"
-                    self.jobs[self.loser]["pipe"].dropped.set()
+                    if self.jobs[self.loser]["settings"].codec != "av1":
+                        self.jobs[self.loser]["pipe"].dropped.set()
 
         return on_run
 

@@ -6,7 +6,7 @@ another, CRF 18, veryfast; ``--threads`` x264 threads, 0 = as many as it picks) 
 the encoder received the same frames and time stamps each time (a hash of every frame it was
 given). Identical encoder input with different output files means the encoder's result depends on
 something other than its input (measured 2026-12-05, hero6 clip, 6 runs: 2-4 distinct files with
-the default threads and 2 with ``--threads 1``, the encoder's input identical every time; the
+the default threads and 2-3 with ``--threads 1``, the encoder's input identical every time; the
 same with the chroma planes' stride padding filled). Not a test: it needs the shared clips and is
 timing dependent.
 """

@@ -32,6 +32,7 @@ import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
@@ -54,6 +55,8 @@ from egovid.fpv.stabilize.render import BORDERS, RenderStats, content_masks, hom
 from egovid.fpv.stabilize.render_views import render_views
 from egovid.fpv.stabilize.visible import VisibleTarget, visible_path
 from egovid.fpv.stabilize.warp import FrameView, MeshWarp, required_zoom
+
+T = TypeVar("T")
 
 
 def _retention(pure_before: float, pure_after: float) -> float:
@@ -294,24 +297,38 @@ def stabilize(
         plan = lock_horizon(plan, down_world if down_world is not None else down_from_path(angles))
     fitted = vt = None
     path, keep = plan, np.ones(len(plan))
-    if borders == "crop" and visible:
-        fitted, vt = visible_path(
-            angles, plan, intr, fps, max_zoom=max_zoom, model=model, anchor_threshold=opts.anchor_threshold
-        )
-        path, keep = fitted.path, fitted.keep
-    elif borders == "crop":
-        fitted = fit_path(angles, plan, intr, fps, max_zoom=max_zoom)
+    R_old = matrix_from_euler(angles[:, 0], angles[:, 1], angles[:, 2])
+    rolling = readout_s != 0.0 and len(R_old) >= 2
+    R_rows = warp = None
+    if borders == "crop" and (lens.fisheye or rolling):
+        R_rows = row_rotations(motion.times, R_old, readout_s if rolling else 0.0, _sensor_rows(intr, info.rotation))
+        warp = MeshWarp(intr, info.rotation, lens=lens)
+    if borders == "crop":
+
+        def fit(budget: float) -> tuple[FittedPath, VisibleTarget | None]:
+            if visible:
+                kw = {"model": model, "anchor_threshold": opts.anchor_threshold}
+                return visible_path(angles, plan, intr, fps, max_zoom=budget, **kw)
+            return fit_path(angles, plan, intr, fps, max_zoom=budget), None
+
+        if warp is not None and lens.fisheye:
+            (fitted, vt), budget = lens_budget(
+                fit, lambda f: lens_need(warp, f[0].path, R_rows), lambda f: 1.0 / f[0].keep, max_zoom
+            )
+            if budget > max_zoom:
+                fitted.notes.append(
+                    f"the path was planned with a {budget:.3f}x pinhole budget: through the {lens.kind} lens "
+                    f"it needs at most {max_zoom:g}x"
+                )
+        else:
+            fitted, vt = fit(max_zoom)
         path, keep = fitted.path, fitted.keep
     t2 = time.perf_counter()
-    R_old = matrix_from_euler(angles[:, 0], angles[:, 1], angles[:, 2])
     R_new = matrix_from_euler(path[:, 0], path[:, 1], path[:, 2])
     H = homographies(R_old, R_new, intr)
     render_warnings: list[str] = []
-    rolling = readout_s != 0.0 and len(R_old) >= 2
-    if borders == "crop" and (lens.fisheye or rolling):
-        R_rows = row_rotations(motion.times, R_old, readout_s if rolling else 0.0, _sensor_rows(intr, info.rotation))
+    if warp is not None and R_rows is not None:
         views = [FrameView(R_new[k], R_rows[k], 1.0) for k in range(len(R_new))]
-        warp = MeshWarp(intr, info.rotation, lens=lens)
         planned_zoom = 1.0 / keep
         zoom, render_warnings = view_zooms(warp, views, planned_zoom, max_zoom, _warp_cause(lens, rolling))
         for v, z in zip(views, zoom, strict=True):
@@ -383,6 +400,45 @@ def row_rotations(times: np.ndarray, R: np.ndarray, readout_s: float, rows: int,
         return out.reshape(len(R), len(s), 3, 3)
     w = frame_rates(R, t)  # (K, 3) rad/s, each frame's own axes
     return R[:, None] @ so3_exp(w[:, None, :] * offsets[None, :, None])
+
+
+def lens_budget(
+    fit: Callable[[float], T],
+    need_of: Callable[[T], np.ndarray],
+    zoom_of: Callable[[T], np.ndarray],
+    max_zoom: float,
+) -> tuple[T, float]:
+    """The fit (``fit(budget)``: a path planned with that pinhole zoom budget) whose path the lens
+    covers within ``max_zoom`` (``need_of(fit)``: (K,) the zoom the lens needs for each frame), at
+    the largest budget tried, and that budget.
+
+    The path programme checks the crop's corners through a pinhole. Through a fisheye the same
+    turn of yaw or pitch costs less zoom (the crop's angular margin grows with the field angle as
+    ``θ``, not as ``atan``), so a path fitted at ``max_zoom`` leaves part of the margin unused: the
+    lens needs ``need0 < max_zoom``. Where the budget binds (the planned zoom, ``zoom_of(fit)``,
+    reaches ``max_zoom``; a budget that does not bind is left alone), it is scaled by the share the lens used,
+    ``1 + (max_zoom - 1)² / (need0 - 1)``, at most twice the excess of ``max_zoom`` (the
+    linearised corners are not checked beyond that), then half way back; the first whose lens need
+    stays within ``max_zoom`` is kept, else the fit at ``max_zoom`` itself. A roll costs the same
+    pixels through either lens, so a path that spends its margin on roll gains nothing."""
+    first = fit(max_zoom)
+    if float(np.max(zoom_of(first))) < max_zoom - 1e-3:
+        return first, max_zoom
+    need0 = float(np.max(need_of(first)))
+    if not (1.0 + 1e-6 < need0 < max_zoom - 1e-3):
+        return first, max_zoom
+    far = min(1.0 + (max_zoom - 1.0) ** 2 / (need0 - 1.0), 1.0 + 2.0 * (max_zoom - 1.0))
+    for budget in (far, 0.5 * (far + max_zoom)):
+        cand = fit(budget)
+        if float(np.max(need_of(cand))) <= max_zoom + 1e-9:
+            return cand, budget
+    return first, max_zoom
+
+
+def lens_need(warp: MeshWarp, path: np.ndarray, R_rows: np.ndarray) -> np.ndarray:
+    """(K,) zoom ``warp`` needs to cover each frame of ``path`` (K, 3) degrees from ``R_rows``."""
+    R_new = matrix_from_euler(path[:, 0], path[:, 1], path[:, 2])
+    return required_zoom(warp, [FrameView(R_new[k], R_rows[k], 1.0) for k in range(len(R_new))])
 
 
 def view_zooms(

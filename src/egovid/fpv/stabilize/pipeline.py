@@ -299,7 +299,8 @@ def stabilize(
     path, keep = plan, np.ones(len(plan))
     R_old = matrix_from_euler(angles[:, 0], angles[:, 1], angles[:, 2])
     rolling = readout_s != 0.0 and len(R_old) >= 2
-    R_rows = warp = None
+    R_rows = warp = lens_zoom = None
+    needs: list[tuple[FittedPath, np.ndarray]] = []  # the lens's zoom need of each path tried
     if borders == "crop" and (lens.fisheye or rolling):
         R_rows = row_rotations(motion.times, R_old, readout_s if rolling else 0.0, _sensor_rows(intr, info.rotation))
         warp = MeshWarp(intr, info.rotation, lens=lens)
@@ -312,9 +313,16 @@ def stabilize(
             return fit_path(angles, plan, intr, fps, max_zoom=budget), None
 
         if warp is not None and lens.fisheye:
-            (fitted, vt), budget = lens_budget(
-                fit, lambda f: lens_need(warp, f[0].path, R_rows), lambda f: 1.0 / f[0].keep, max_zoom
-            )
+
+            def need_of(f: tuple[FittedPath, VisibleTarget | None]) -> np.ndarray:
+                for tried, need in needs:  # the fits are held: identity is safe
+                    if tried is f[0]:
+                        return need
+                needs.append((f[0], lens_need(warp, f[0].path, R_rows)))
+                return needs[-1][1]
+
+            (fitted, vt), budget = lens_budget(fit, need_of, lambda f: 1.0 / f[0].keep, max_zoom)
+            lens_zoom = next((need for tried, need in needs if tried is fitted), None)
             if budget > max_zoom:
                 fitted.notes.append(
                     f"the path was planned with a {budget:.3f}x pinhole budget: through the {lens.kind} lens "
@@ -330,7 +338,9 @@ def stabilize(
     if warp is not None and R_rows is not None:
         views = [FrameView(R_new[k], R_rows[k], 1.0) for k in range(len(R_new))]
         planned_zoom = 1.0 / keep
-        zoom, render_warnings = view_zooms(warp, views, planned_zoom, max_zoom, _warp_cause(lens, rolling))
+        zoom, render_warnings = view_zooms(
+            warp, views, planned_zoom, max_zoom, _warp_cause(lens, rolling), need=lens_zoom
+        )
         for v, z in zip(views, zoom, strict=True):
             v.zoom = float(z)
         keep = 1.0 / zoom
@@ -442,12 +452,18 @@ def lens_need(warp: MeshWarp, path: np.ndarray, R_rows: np.ndarray) -> np.ndarra
 
 
 def view_zooms(
-    warp: MeshWarp, views: list[FrameView], planned: np.ndarray, max_zoom: float, cause: str = "lens"
+    warp: MeshWarp,
+    views: list[FrameView],
+    planned: np.ndarray,
+    max_zoom: float,
+    cause: str = "lens",
+    need: np.ndarray | None = None,
 ) -> tuple[np.ndarray, list[str]]:
     """(K,) zoom of each view: the ``planned`` zoom raised to the least one that the warp's own
     projection (lens, rolling shutter) covers, never above ``max_zoom``; and a warning, with what
-    to change, when some frames would need more than ``max_zoom`` (their edges show border)."""
-    need = required_zoom(warp, views)
+    to change, when some frames would need more than ``max_zoom`` (their edges show border).
+    ``need`` is that least zoom where the caller has it already (:func:`required_zoom` of ``views``)."""
+    need = required_zoom(warp, views) if need is None else np.asarray(need, float)
     zoom = np.minimum(np.maximum(np.asarray(planned, float), need), max_zoom)
     over = need > max_zoom + 1e-6
     if not np.any(over):

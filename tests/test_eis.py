@@ -162,6 +162,9 @@ def test_gyro_with_shake_the_picture_lacks_is_set_aside(bob_clip, monkeypatch):
     monkeypatch.setattr(source_mod, "read_camera_telemetry", lambda path: _telemetry(truth, extra))
     cm = source_mod.camera_motion(clip, "gyro")
     assert cm.source == "gyro" and "seems to have stabilised" in cm.reason
+    # Vision asked for by name does not lean on that gyro (no bridges, no focal fit from it).
+    cm = source_mod.camera_motion(clip, "vision")
+    assert cm.source == "vision" and cm.sync is None and cm.focal_fit is None and cm.body_sync is not None
 
 
 # ------------------------------------------------------------------------------------------

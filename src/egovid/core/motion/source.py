@@ -422,7 +422,8 @@ def _check_picture(run: _Run) -> None:
     fit, which would absorb part of a missing shake into the focal length). For ``auto`` on a file
     that does not say the camera stabilised the picture, a picture judged stabilised in the camera
     sets the body gyro aside: the camera's recorded image orientation is used where there is one,
-    else vision on the whole video. Otherwise the verdict is added to the reason."""
+    else vision on the whole video; vision asked for by name no longer uses that gyro (bridges,
+    focal-length fit). Otherwise the verdict is added to the reason."""
     times = run.vision.trajectory.times
     vision_rates = gyro_mod.frame_rates(times, run.vision.trajectory.R)
     gyro_rates = gyro_mod.frame_rates(times, gyro_mod.frame_rotations(run.track, run.sync, times))
@@ -436,12 +437,14 @@ def _check_picture(run: _Run) -> None:
                 else "cannot tell whether the camera stabilised it"
             )
         return
-    if run.requested != "auto" or not run.source.needs_gyro:
-        if run.source.needs_gyro:
-            run.reason += (
-                f"; note: {pic.describe()}: the camera seems to have stabilised it "
-                "(--source auto would not use the gyro)"
-            )
+    if not run.source.needs_gyro:  # vision asked for: the body gyro neither bridges nor fits its focal length
+        run.body_sync, run.track, run.gyro_track, run.sync = run.sync, None, None, None
+        run.reason += f"; {pic.describe()}: the camera stabilised the picture itself, so its body gyro is not used"
+        return
+    if run.requested != "auto":
+        run.reason += (
+            f"; note: {pic.describe()}: the camera seems to have stabilised it (--source auto would not use the gyro)"
+        )
         return
     note = f"; but {pic.describe()}: the camera stabilised the picture itself, so its body gyro does not describe it"
     run.body_sync = run.sync

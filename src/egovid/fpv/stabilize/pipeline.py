@@ -67,7 +67,8 @@ class StabilizeResult:
     1/keep); scores of the path as ``planned``; ``before``/``after`` measured on the decoded input
     and output (None with ``measure=False``); ``seconds`` per stage (not in :meth:`summary`,
     which is deterministic); ``camera_motion`` the input's motion where
-    :func:`egovid.fpv.stabilize.run.stabilize_video` estimated it (its times not in ``seconds``)."""
+    :func:`egovid.fpv.stabilize.run.stabilize_video` estimated it (its times not in ``seconds``; its
+    source, reason, sync and picture-vs-gyro share in :meth:`summary` under ``motion_source``)."""
 
     output: str
     times: np.ndarray
@@ -104,6 +105,8 @@ class StabilizeResult:
             "notes": self.fitted.notes if self.fitted else [],
             "params": self.params,
         }
+        if self.camera_motion is not None:
+            out["motion_source"] = self.camera_motion.source_dict()
         if self.before is not None and self.after is not None:
             out["measured"] = {"before": self.before.to_dict(), "after": self.after.to_dict()}
             out["fpmi_retention_measured"] = _retention(self.before.pure_fpm_ve, self.after.pure_fpm_ve)

@@ -319,14 +319,19 @@ class _Codec:
             self.close()
 
 
-def ref_config(refs: dict[int, int], refresh: tuple[int, ...]) -> RefConfig:
+def ref_config(refs: dict[int, int], refresh: tuple[int, ...], spare: int = 0) -> RefConfig:
     """The explicit reference structure of one frame: ``refs`` maps the reference types it may
     predict from (:data:`LAST`, ..., :data:`ALTREF`) to slots; ``refresh``: the slots its picture
-    replaces. Unused reference types point at slot 0 (libaom wants every index valid)."""
+    replaces. Unused reference types point at slot ``spare`` (libaom wants every index valid).
+
+    libaom 3.6's realtime mode refreshes only slots that some reference type points at, used or
+    not (``av1_get_refresh_frame_flags``): a refresh of any other slot is silently dropped. With
+    ``spare`` 0 (the flat structure, kept for its bytes) a run's 2nd and 3rd frames are therefore
+    not kept in slots 1 and 2; the layered structure passes its refreshed slot as ``spare``."""
     cfg = RefConfig()
     for t in range(7):
         cfg.reference[t] = int(t in refs)
-        cfg.ref_idx[t] = refs.get(t, 0)
+        cfg.ref_idx[t] = refs.get(t, spare)
     for s in range(SLOTS):
         cfg.refresh[s] = int(s in refresh)
     return cfg
@@ -413,13 +418,15 @@ class AV1Encoder(_Codec):
         refresh: tuple[int, ...] = (),
         baseline: np.ndarray | None = None,
         q: int | None = None,
+        spare: int = 0,
     ) -> bytes:
         """Encode one padded I420 frame. ``refs`` None: a keyframe (refreshes every slot); else
         the reference types -> slots it may predict from and the slots it refreshes
         (:func:`ref_config`). ``baseline`` is first copied into :data:`BASELINE_SLOT`. ``q``: the
         frame's quantiser (0-63), kept for the frames after it (None: the one in force; the
-        encoder's configuration is changed only when it differs). Returns the frame's packet (a
-        temporal unit)."""
+        encoder's configuration is changed only when it differs); ``spare``: the slot unused
+        reference types point at (:func:`ref_config`). Returns the frame's packet (a temporal
+        unit)."""
         if q is not None and q != self._q:
             self.set_quantizer(q)
         if refs is None:
@@ -431,7 +438,7 @@ class AV1Encoder(_Codec):
                 raise ValueError("the first frame must be a keyframe")
             if baseline is not None:
                 self.set_reference(baseline, BASELINE_SLOT)
-            cfg = ref_config(refs, refresh)
+            cfg = ref_config(refs, refresh, spare)
             self._control(AV1E_SET_SVC_REF_FRAME_CONFIG, ctypes.byref(cfg))
             flags = 0
         return self._encode(frame, flags)
@@ -607,6 +614,12 @@ class RunRefs:
         slot = free[0] if free else self.recent[-1]
         self.recent = [slot] + [s for s in self.recent if s != slot]
         return refs, (slot,)
+
+    def spare(self, refresh: tuple[int, ...]) -> int:
+        """The slot a frame's unused reference types point at (:func:`ref_config`): 0 in the flat
+        structure (as the first libaom archives were coded), the refreshed slot in layers (else
+        libaom's realtime mode would not refresh it)."""
+        return refresh[0] if self.period > 1 and refresh else 0
 
     def q_offset(self, layer: int, top_dq: int) -> int:
         """What a frame of ``layer`` adds to the segment's quantiser: ``top_dq`` on the top layer,

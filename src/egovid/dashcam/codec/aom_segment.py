@@ -63,7 +63,8 @@ class _AomCoder:
     def code(self, frame, refs, refresh=(), baseline=None, layer=0) -> tuple[bytes, np.ndarray]:
         t0 = time.perf_counter()
         q = min(63, self.q + self.run.q_offset(layer, self.top_dq))
-        pkt = self.enc.encode(frame, refs, refresh, baseline, q)
+        spare = self.run.spare(refresh) if refs is not None else 0
+        pkt = self.enc.encode(frame, refs, refresh, baseline, q, spare)
         rec = self.enc.reconstruction()
         t1 = time.perf_counter()
         self.clock["encode"] = self.clock.get("encode", 0.0) + t1 - t0

@@ -33,7 +33,7 @@ class EncoderSettings:
     realtime deadline, libaom's realtime mode; ``threads``: encoder threads (SVT-AV1: its logical
     processors); ``tile_columns`` (log2) and ``row_mt``: libvpx's and libaom's multi-threading (the
     bitstream decodes to the same pictures whatever the threads); coding structure ``gop`` (libaom: the temporal-layer
-    period, 1 flat, 2 or 4 layers, the top layer at ``q + gop_dq``,
+    period, 1 flat, 2 or 4 layers in realtime mode only, the top layer at ``q + gop_dq``,
     :class:`~egovid.dashcam.codec.aom.RunRefs`; VP9: 1 = low delay; G > 1 = every G-th
     frame an *anchor* predicted from the anchor before it, the frames between coded after it from
     the previous frame and the anchor ahead, at quantiser ``q + gop_dq``; see
@@ -81,5 +81,9 @@ class EncoderSettings:
             raise EgovidError(
                 f"libaom temporal-layer period {self.gop} is not one of {LAYER_PERIODS}", "use 1 (flat) or 4"
             )
+        if self.codec == "aom" and self.gop > 1 and not self.realtime:
+            # good quality does not keep to the explicit structure (a decoder given all but the
+            # top layer fails on the frames after it)
+            raise EgovidError("libaom temporal layers need its realtime mode", "use layer period 1 (flat)")
         if not 0 <= self.gop_dq <= 63:
             raise EgovidError(f"quantiser offset {self.gop_dq} is outside 0-63", "use e.g. 12")

@@ -174,3 +174,44 @@ def test_a_libaom_layer_period_other_than_1_2_4_is_refused():
     with pytest.raises(Exception, match="realtime mode"):
         EncoderSettings(q=32, speed=6, codec="aom", gop=4)
     EncoderSettings(q=32, speed=7, codec="vp9", gop=8)  # VP9's anchor spacing is another matter
+
+
+def _slot(dec: aom.AV1Decoder, s: int) -> np.ndarray:
+    """The picture the decoder holds in reference slot ``s``."""
+    import ctypes
+
+    buf = np.zeros((H * 3 // 2, W), np.uint8)
+    ref = aom.Av1RefFrame()
+    ref.idx, ref.img = s, dec._wrap(buf)
+    dec._control(aom.AV1_COPY_REFERENCE, ctypes.byref(ref))
+    return buf
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_keep_refresh_keeps_every_frame_the_structure_refreshes(keep):
+    """The decoder's reference slots after each frame of a flat joint run (the bitstream's own
+    account of what was kept): with ``keep_refresh`` every frame is in the slot the structure
+    refreshes; without it (the flat structure of the first libaom archives) libaom's realtime
+    mode dropped the refreshes of the run's 2nd and 3rd frames (slots no reference type pointed
+    at), which is why the default preset keeps them."""
+    n = 8
+    new, base = _pair(n)
+    recon: list = []
+    st = EncoderSettings(q=30, speed=7, codec="aom", realtime=True, refresh=n, keep_refresh=keep)
+    enc = registry.encode_segment(iter(new), W, H, st, baselines=lambda k: base[k], keep_recon=recon)
+    lay, off = codec.parse_header(enc.blob)
+    structure = aom.run_structure(n, True)
+    dec = aom.AV1Decoder(W, H)
+    kept = []
+    packets = codec.iter_packets(enc.blob, off, lay.n_packets)
+    for (_, _, refresh), pkt, k in zip(structure, packets, range(-2, n), strict=True):
+        pic = dec.decode(pkt, base[k] if k >= 0 else None)
+        if k >= 0:
+            assert np.array_equal(pic, recon[k])
+            kept.append(all(np.array_equal(_slot(dec, s), pic) for s in refresh))
+    dec.close()
+    assert kept == ([True] * n if keep else [True, False, False] + [True] * (n - 3))
+    legacy = registry.encode_segment(
+        iter(new), W, H, EncoderSettings(**{**st.__dict__, "keep_refresh": False}), lambda k: base[k]
+    )
+    assert (legacy.blob == enc.blob) == (not keep)

@@ -78,6 +78,7 @@ def test_a_piece_is_coded_jointly_in_av1_and_the_choice_recorded(pair):
         rt = PRESETS["realtime"]
         assert joint[0].params["realtime"] and joint[0].params["q"] == 32 + rt["aom_dq"]
         assert (joint[0].params["speed"], joint[0].params["gop"], joint[0].params["preset"]) == (7, 1, "realtime")
+        assert joint[0].params["keep_refresh"]
         assert joint[0].ref_drive_id == a.id
         # The injected reference is what the pictures are predicted from: without it libaom refuses,
         # with a grey picture in its place the pictures come out otherwise.
@@ -127,12 +128,22 @@ def test_the_joint_codec_must_code_against_the_older_drive(pair):
 
 def test_the_presets_joint_codecs():
     """The archive preset's joint candidate is libaom in good quality at its fastest speed, flat;
-    the default realtime preset's is libaom's realtime mode at cpu-used 7, flat, at --q + 10;
+    the default realtime preset's is libaom's realtime mode at cpu-used 7, flat, every reference
+    refresh kept, at --q + 10;
     --joint-codec vp9 gives the VP9 settings of before (the balanced preset's default)."""
     st = IngestOptions.from_preset("archive").joint_settings(30.0)
-    assert (st.codec, st.realtime, st.speed, st.q, st.threads, st.gop) == ("aom", False, 6, 44, 1, 1)
+    assert (st.codec, st.realtime, st.speed, st.q, st.threads, st.gop, st.keep_refresh) == (
+        "aom",
+        False,
+        6,
+        44,
+        1,
+        1,
+        False,
+    )
     st = IngestOptions().joint_settings(25.0)
     assert (st.codec, st.realtime, st.speed, st.q, st.gop, st.fps, st.refresh) == ("aom", True, 7, 42, 1, 25, 24)
+    assert st.keep_refresh
     assert IngestOptions.from_preset(None) == IngestOptions() and IngestOptions().preset == "realtime"
     vp9 = IngestOptions.from_preset("realtime", joint_codec="vp9")
     assert vp9.joint_settings(30.0) == vp9.encoder_settings(30.0) and vp9.joint_settings(30.0).codec == "vp9"

@@ -326,8 +326,10 @@ def ref_config(refs: dict[int, int], refresh: tuple[int, ...], spare: int = 0) -
 
     libaom 3.6's realtime mode refreshes only slots that some reference type points at, used or
     not (``av1_get_refresh_frame_flags``): a refresh of any other slot is silently dropped. With
-    ``spare`` 0 (the flat structure, kept for its bytes) a run's 2nd and 3rd frames are therefore
-    not kept in slots 1 and 2; the layered structure passes its refreshed slot as ``spare``."""
+    ``spare`` 0 (the flat structure of the first libaom archives, kept for their bytes) a run's 2nd
+    and 3rd frames are therefore not kept in slots 1 and 2, and its 3rd and 4th frames predict from
+    the run's start (the grey frame of a joint run) as LAST; :class:`RunRefs` with
+    ``keep_refresh`` and the layered structure pass the refreshed slot as ``spare``."""
     cfg = RefConfig()
     for t in range(7):
         cfg.reference[t] = int(t in refs)
@@ -574,14 +576,16 @@ class RunRefs:
     upper-layer frame from the nearest frames of the layers below it before it (LAST the newer,
     ALTREF the older), every frame also from the baseline (GOLDEN); a layer's newest frame is held
     in slot ``layer`` (0 or 1), frames of the top layer refresh :data:`SCRATCH_SLOT`, which no
-    frame reads. Low delay either way: no
-    frame is coded out of display order. ``joint``: the run starts from the baseline (after two
-    undisplayed grey frames, which leave slot 0 grey) rather than from a keyframe."""
+    frame reads. Low delay either way: no frame is coded out of display order. ``joint``: the run
+    starts from the baseline (after two undisplayed grey frames, which leave slot 0 grey) rather
+    than from a keyframe. ``keep_refresh``: every refresh is kept in libaom's realtime mode
+    (:meth:`spare`; always so in layers); without it a flat run is coded as by the first libaom
+    archives, byte for byte."""
 
-    def __init__(self, joint: bool, period: int = 1) -> None:
+    def __init__(self, joint: bool, period: int = 1, keep_refresh: bool = False) -> None:
         if period not in LAYER_PERIODS:
             raise ValueError(f"layer period {period} is not one of {LAYER_PERIODS}")
-        self.joint, self.period = joint, period
+        self.joint, self.period, self.keep_refresh = joint, period, keep_refresh or period > 1
         self.recent: list[int] = [] if joint else [0]  # flat: after a keyframe every slot holds it
         self.held: dict[int, tuple[int, int]] = {} if joint else {0: (0, 0)}  # layer -> (frame, slot)
         self.j = 0 if joint else 1  # the run's next frame (a standalone run's frame 0 is its keyframe)
@@ -616,10 +620,10 @@ class RunRefs:
         return refs, (slot,)
 
     def spare(self, refresh: tuple[int, ...]) -> int:
-        """The slot a frame's unused reference types point at (:func:`ref_config`): 0 in the flat
-        structure (as the first libaom archives were coded), the refreshed slot in layers (else
-        libaom's realtime mode would not refresh it)."""
-        return refresh[0] if self.period > 1 and refresh else 0
+        """The slot a frame's unused reference types point at (:func:`ref_config`): the refreshed
+        slot with ``keep_refresh`` (else libaom's realtime mode would not refresh it), 0 without
+        (as the first libaom archives were coded)."""
+        return refresh[0] if self.keep_refresh and refresh else 0
 
     def q_offset(self, layer: int, top_dq: int) -> int:
         """What a frame of ``layer`` adds to the segment's quantiser: ``top_dq`` on the top layer,

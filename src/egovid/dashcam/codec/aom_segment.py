@@ -58,7 +58,8 @@ class _AomCoder:
         self.follow = False
         self.grey = np.full((self.ph * 3 // 2, self.pw), 128, np.uint8)
         self.q, self.top_dq, self.period = settings.q, settings.gop_dq, settings.gop
-        self.run = aom.RunRefs(False, self.period)
+        self.keep_refresh = settings.keep_refresh
+        self.run = aom.RunRefs(False, self.period, settings.keep_refresh)
 
     def code(self, frame, refs, refresh=(), baseline=None, layer=0) -> tuple[bytes, np.ndarray]:
         t0 = time.perf_counter()
@@ -86,7 +87,7 @@ class _AomCoder:
         """The run's first frame: a keyframe, or (with a baseline) from it alone after the two
         undisplayed grey frames."""
         self.follow = self.dec is not None and (self.verify_runs is None or self.verify_runs(len(self.out.starts)))
-        self.run = aom.RunRefs(b0 is not None, self.period)
+        self.run = aom.RunRefs(b0 is not None, self.period, self.keep_refresh)
         if b0 is None:
             self.out.begin_run(segment.START_KEY)
             self.finish(k0, first, None)

@@ -40,7 +40,10 @@ class EncoderSettings:
     :mod:`egovid.dashcam.codec.segment`; SVT-AV1 chooses its own hierarchical structure) and
     ``refresh``, the random-access period in frames (0 = only the first frame; the keyframe
     spacing of an AV1 segment); ``start_speed``: VP9 cpu-used for the first frame of a joint run,
-    the one predicted from the baseline alone (0 = ``speed``)."""
+    the one predicted from the baseline alone (0 = ``speed``); ``keep_refresh`` (libaom): every
+    slot refresh of the structure is kept in libaom's realtime mode, which otherwise drops those
+    of slots no reference type points at (:class:`~egovid.dashcam.codec.aom.RunRefs`; False: the
+    flat structure of the first libaom archives, byte for byte; layers always keep theirs)."""
 
     q: int
     speed: int
@@ -54,6 +57,7 @@ class EncoderSettings:
     tile_columns: int = 0
     row_mt: bool = False
     start_speed: int = 0
+    keep_refresh: bool = False
 
     def __post_init__(self) -> None:
         if self.codec not in SPEEDS:

@@ -47,6 +47,7 @@ PRESETS: dict[str, dict] = {
         "aom_speed": 7,
         "aom_dq": 10,
         "aom_gop": 1,
+        "aom_keep_refresh": True,
     },
     # SVT-AV1 preset 8; libvpx's good-quality deadline at its fastest speed, two threads sharing
     # rows and two tile columns: the different-day saving of the archive preset's deadline
@@ -69,6 +70,7 @@ PRESETS: dict[str, dict] = {
         "aom_speed": 6,
         "aom_dq": registry.BACKENDS["aom"].q_offset,
         "aom_gop": 1,
+        "aom_keep_refresh": False,
     },
     # SVT-AV1 preset 6; the joint candidate in AV1 by libaom's good-quality mode at cpu-used 6 (its
     # fastest), one thread: the smallest files (docs/dashcam.md, "Codecs").
@@ -89,6 +91,7 @@ PRESETS: dict[str, dict] = {
         "aom_speed": 6,
         "aom_dq": registry.BACKENDS["aom"].q_offset,
         "aom_gop": 1,
+        "aom_keep_refresh": False,
     },
 }
 DEFAULT_PRESET = "realtime"
@@ -132,6 +135,9 @@ class IngestOptions:
     0-10 with ``realtime``); ``aom_dq``: what its libaom quantiser adds to ``q`` (the base layer's,
     with temporal layers); ``aom_gop``: its temporal-layer period (1 flat; 2 or 4 layers, the top
     layer at ``+12`` over the base, :class:`~egovid.dashcam.codec.aom.RunRefs`);
+    ``aom_keep_refresh``: its flat structure keeps every reference refresh in libaom's realtime
+    mode (:class:`~egovid.dashcam.codec.settings.EncoderSettings` ``keep_refresh``; False: coded as
+    the first libaom archives);
     ``preset``: the name of the preset these came from (recorded with each segment).
     """
 
@@ -158,6 +164,7 @@ class IngestOptions:
     aom_speed: int = _D["aom_speed"]
     aom_dq: int = _D["aom_dq"]
     aom_gop: int = _D["aom_gop"]
+    aom_keep_refresh: bool = _D["aom_keep_refresh"]
     preset: str | None = DEFAULT_PRESET
 
     @classmethod
@@ -243,6 +250,7 @@ class IngestOptions:
             realtime=self.realtime,
             fps=vp9.fps,
             gop=self.aom_gop,
+            keep_refresh=self.aom_keep_refresh,
             refresh=self.refresh,
             threads=self.threads,
             tile_columns=self.tile_columns,

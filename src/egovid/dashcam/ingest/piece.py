@@ -569,6 +569,7 @@ def _encoded(run, opts, enc, sha, kept, why, encoders, alone, joint, t_start) ->
         "realtime": st.realtime,
         "threads": st.threads,
         "gop": st.gop,
+        "keep_refresh": st.keep_refresh,
         "refresh": st.refresh,
         "preset": opts.preset,
         "recon_digest": enc.recon_digest,

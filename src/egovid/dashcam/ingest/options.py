@@ -19,17 +19,22 @@ CODECS = ("av1", "vp9")  # what standalone pieces can be stored in
 #: benchmarks/dashcam_ingest_speed.py (speed) and benchmarks/dashcam_bdrate.py (savings).
 #: ``codec``/``av1_speed``: the codec of pieces stored standalone (first drives, pieces with no
 #: older drive of their path and light, and joint pieces where the standalone encode is smaller);
-#: the VP9 settings (``realtime``, ``speed``, ...) code the joint candidates.
+#: the VP9 settings (``realtime``, ``speed``, ...) code VP9 joint candidates and VP9 pieces.
 #: ``joint_codec``: the codec of the joint candidate (``vp9``: libvpx at ``speed``; ``aom``: AV1 by
 #: libaom at cpu-used ``aom_speed``, its realtime mode where ``realtime``, else good quality, at
-#: quantiser ``--q`` + ``aom_dq``, in temporal layers of period ``aom_gop`` (1: flat)).
+#: quantiser ``--q`` + ``aom_dq``, in temporal layers of period ``aom_gop`` (1: flat), every
+#: reference refresh kept where ``aom_keep_refresh``).
 PRESETS: dict[str, dict] = {
-    # SVT-AV1 preset 10 for standalone pieces; libvpx's realtime deadline at its fastest speed for
-    # the joint candidate, two threads sharing rows and two tile columns (one column saves 0.6
-    # points more but root drives ingest slower), the first frame of each joint random-access run
-    # at cpu-used 5 (0.6 points, no measurable time); one set of ORB key points per frame shared by
-    # the search and the refinement, which measure every 2nd frame (the others interpolated).
-    # docs/dashcam.md, "Why the realtime deadline saved less".
+    # SVT-AV1 preset 10 for standalone pieces; the joint candidate in AV1 by libaom's realtime
+    # mode at cpu-used 7, flat (each frame from the ones before it and the older drive), every
+    # reference refresh kept, at --q + 10 (about SVT-AV1's PSNR-Y at --q + 14), two threads
+    # sharing rows and two tile columns: new drives of the day set -26.1 % BD-rate (PSNR-Y) against
+    # plain SVT-AV1 preset 10 through `egovid dashcam ingest` (VP9 joint: +0.3 %, it lost every
+    # piece), the whole archive -41.9 % against the VP9 archive of before (docs/dashcam.md,
+    # "Codecs"). Temporal layers (aom_gop 4, base at --q + 5) measured -19.6 %: not taken.
+    # The VP9 settings (libvpx realtime at its fastest, first frame of a joint run at cpu-used 5)
+    # serve --joint-codec vp9 and --codec vp9. One set of ORB key points per frame shared by the
+    # search and the refinement, which measure every 2nd frame (the others interpolated).
     "realtime": {
         "codec": "av1",
         "av1_speed": 10,

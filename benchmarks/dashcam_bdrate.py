@@ -240,7 +240,9 @@ def main() -> None:
             row: dict = {"set": set_name}
             row["egovid"] = [archive_point(paths["ref"], paths[name], preset, q, "av1", joint) for q in QS]
             if with_vp9:
-                row["egovid-vp9 (today)"] = [archive_point(paths["ref"], paths[name], today, q, "vp9") for q in QS]
+                row["egovid-vp9 (today)"] = [
+                    archive_point(paths["ref"], paths[name], today, q, "vp9", "vp9") for q in QS
+                ]
             row["svt-av1"] = [plain(new_frames, "libsvtav1", c, svt) for c in SVT_CRFS]
             row["vp9-realtime"] = [plain(new_frames, "libvpx-vp9", c, vp9) for c in VP9_CRFS]
             for p in extra:

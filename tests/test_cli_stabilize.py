@@ -29,6 +29,9 @@ def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
     with av.open(str(out)) as c:
         assert len(c.streams.audio) == 1
     s = json.loads((tmp_path / "r.json").read_text())
+    # The motion source, asked and used, and why: in the JSON and on the console.
+    assert s["motion_source"] == {"source": "vision", "requested": "auto", "reason": "the file records no gyro"}
+    assert "motion    vision (the file records no gyro)" in r.stdout
     mb, ma = s["measured"]["before"], s["measured"]["after"]
     assert ma["ve"] > mb["ve"] and ma["itf_db"] > mb["itf_db"] and ma["ve2d"] > mb["ve2d"]
     assert ma["shake_px"] < mb["shake_px"] and s["warnings"] == []  # the decoded pictures shake less

@@ -8,7 +8,7 @@ import hashlib
 import numpy as np
 import pytest
 
-from egovid.dashcam.codec import aom, registry
+from egovid.dashcam.codec import aom, registry, vpx
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.codec.settings import EncoderSettings
 
@@ -84,3 +84,134 @@ def test_libaom_settings_are_checked():
     with pytest.raises(Exception, match="realtime mode"):
         EncoderSettings(q=32, speed=10, codec="aom")
     EncoderSettings(q=32, speed=10, codec="aom", realtime=True)
+
+
+#: The reference structure of the first libaom archives (flat: every frame from its three previous
+#: frames in slots 0-2, the newest written over the oldest, and the baseline in slot 3 as GOLDEN),
+#: written out as that code produced it for a joint run of 6 frames: a flat segment must still be
+#: coded so, byte for byte, or the segments stored before layers would no longer be reproduced.
+FLAT_JOINT_RUN = [
+    ("dummy", {}, (0, 1, 2, 3, 4, 5, 6, 7)),
+    ("dummy", {0: 0}, (0,)),
+    ("ra", {0: 3}, (0,)),
+    ("p", {0: 0, 3: 3}, (1,)),
+    ("p", {0: 1, 1: 0, 3: 3}, (2,)),
+    ("p", {0: 2, 1: 1, 2: 0, 3: 3}, (0,)),
+    ("p", {0: 0, 1: 2, 2: 1, 3: 3}, (1,)),
+    ("p", {0: 1, 1: 0, 2: 2, 3: 3}, (2,)),
+]
+
+
+def test_a_flat_segment_is_coded_as_before_layers():
+    """gop 1: the structure of the first libaom archives, and the segment's packets are those of
+    libaom driven frame by frame through that structure at one quantiser."""
+    assert aom.run_structure(6, True) == FLAT_JOINT_RUN
+    new, base = _pair(6)
+    st = EncoderSettings(q=32, speed=7, codec="aom", realtime=True, refresh=6, gop=1)
+    enc = registry.encode_segment(iter(new), W, H, st, baselines=lambda k: base[k])
+    lay, off = codec.parse_header(enc.blob)
+    assert lay.gop == 1
+    pw, ph = aom.padded_size(W, H)
+    coder = aom.AV1Encoder(pw, ph, aom.AomSettings(q=32, speed=7, realtime=True, threads=1, row_mt=False))
+    grey = np.full_like(new[0], 128)
+    want = []
+    for i, (role, refs, refresh) in enumerate(FLAT_JOINT_RUN):
+        if role == "dummy":
+            want.append(coder.encode(grey, refs or None, refresh))
+        else:
+            want.append(coder.encode(new[i - 2], refs, refresh, base[i - 2]))
+    coder.close()
+    assert list(codec.iter_packets(enc.blob, off, lay.n_packets)) == want
+
+
+def test_temporal_layers_decode_bit_exactly_and_the_top_layer_is_left_out():
+    """gop 4: frames 0 mod 4 the base layer, 2 mod 4 layer 1, odd frames layer 2 at quantisers
+    +0/+6/+12. Decoded with the same baselines, the pictures are the encoder's, from the start and
+    from a later run; no frame refers to the top layer, so a decoder given every packet but the
+    top layer's reproduces the other frames bit for bit (the independent truth of the structure);
+    the top layer is coarser (its pictures further from the source than the base layer's)."""
+    n, refresh = 20, 8
+    new, base = _pair(n)
+    have = lambda k: base[k] if k < 16 else None  # noqa: E731  (run 16-19: plain AV1, no baseline)
+    recon: list = []
+    st = EncoderSettings(q=30, speed=7, codec="aom", realtime=True, refresh=refresh, gop=4)
+    enc = registry.encode_segment(iter(new), W, H, st, baselines=have, keep_recon=recon, verify=True)
+    lay, off = codec.parse_header(enc.blob)
+    assert lay.gop == 1 and lay.starts == (codec.START_BASELINE_HELD,) * 2 + (codec.START_KEY,)
+    out = list(registry.decode_segment(enc.blob, have))
+    assert len(out) == n and all(np.array_equal(a, b) for a, b in zip(out, recon, strict=True))
+    tail = list(registry.decode_segment(enc.blob, have, start=11))
+    assert all(np.array_equal(a, b) for a, b in zip(tail, recon[11:], strict=True)) and len(tail) == n - 11
+    # which packet is which frame: the plan of the header (dummies before each joint run)
+    plan = lay.plan()
+    packets = list(codec.iter_packets(enc.blob, off, lay.n_packets))
+    j_of = lambda k: k % refresh  # noqa: E731
+    dec = aom.AV1Decoder(*aom.padded_size(W, H))
+    kept, err = {}, {0: [], 2: []}
+    for (k, role, _), pkt in zip(plan, packets, strict=True):
+        layer = aom.layer_of(j_of(k), 4)
+        if role != "dummy" and layer in err:
+            err[layer].append(np.mean((recon[k][:H].astype(float) - new[k][:H]) ** 2))
+        if role != "dummy" and layer == 2:
+            continue  # left out
+        joint = k < 16 and role != "key"
+        pic = dec.decode(pkt, vpx.pad_i420(base[k], *aom.padded_size(W, H)) if joint and role != "dummy" else None)
+        if role != "dummy":
+            kept[k] = pic
+    dec.close()
+    assert sorted(kept) == [k for k in range(n) if aom.layer_of(j_of(k), 4) < 2]
+    for k, pic in kept.items():
+        assert np.array_equal(vpx.crop_i420(pic, W, H), recon[k]), k
+    assert np.mean(err[2]) > 1.5 * np.mean(err[0])
+    # flat, the same frames: other packets (the layers change the coding, not the container)
+    flat = registry.encode_segment(iter(new), W, H, EncoderSettings(**{**st.__dict__, "gop": 1}), baselines=have)
+    assert flat.blob != enc.blob and codec.parse_header(flat.blob)[0].n_packets == lay.n_packets
+
+
+def test_a_libaom_layer_period_other_than_1_2_4_is_refused():
+    with pytest.raises(Exception, match="layer period"):
+        EncoderSettings(q=32, speed=7, codec="aom", realtime=True, gop=8)
+    with pytest.raises(Exception, match="realtime mode"):
+        EncoderSettings(q=32, speed=6, codec="aom", gop=4)
+    EncoderSettings(q=32, speed=7, codec="vp9", gop=8)  # VP9's anchor spacing is another matter
+
+
+def _slot(dec: aom.AV1Decoder, s: int) -> np.ndarray:
+    """The picture the decoder holds in reference slot ``s``."""
+    import ctypes
+
+    buf = np.zeros((H * 3 // 2, W), np.uint8)
+    ref = aom.Av1RefFrame()
+    ref.idx, ref.img = s, dec._wrap(buf)
+    dec._control(aom.AV1_COPY_REFERENCE, ctypes.byref(ref))
+    return buf
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_keep_refresh_keeps_every_frame_the_structure_refreshes(keep):
+    """The decoder's reference slots after each frame of a flat joint run (the bitstream's own
+    account of what was kept): with ``keep_refresh`` every frame is in the slot the structure
+    refreshes; without it (the flat structure of the first libaom archives) libaom's realtime
+    mode dropped the refreshes of the run's 2nd and 3rd frames (slots no reference type pointed
+    at), which is why the default preset keeps them."""
+    n = 8
+    new, base = _pair(n)
+    recon: list = []
+    st = EncoderSettings(q=30, speed=7, codec="aom", realtime=True, refresh=n, keep_refresh=keep)
+    enc = registry.encode_segment(iter(new), W, H, st, baselines=lambda k: base[k], keep_recon=recon)
+    lay, off = codec.parse_header(enc.blob)
+    structure = aom.run_structure(n, True)
+    dec = aom.AV1Decoder(W, H)
+    kept = []
+    packets = codec.iter_packets(enc.blob, off, lay.n_packets)
+    for (_, _, refresh), pkt, k in zip(structure, packets, range(-2, n), strict=True):
+        pic = dec.decode(pkt, base[k] if k >= 0 else None)
+        if k >= 0:
+            assert np.array_equal(pic, recon[k])
+            kept.append(all(np.array_equal(_slot(dec, s), pic) for s in refresh))
+    dec.close()
+    assert kept == ([True] * n if keep else [True, False, False] + [True] * (n - 3))
+    legacy = registry.encode_segment(
+        iter(new), W, H, EncoderSettings(**{**st.__dict__, "keep_refresh": False}), lambda k: base[k]
+    )
+    assert (legacy.blob == enc.blob) == (not keep)

@@ -1,9 +1,9 @@
-"""The joint candidate in AV1 (``egovid dashcam ingest --joint-codec aom``): a piece with an older
+"""The joint candidate in AV1 (the default preset's, ``--joint-codec aom``): a piece with an older
 drive is coded by libaom with the older drive's aligned frame injected as a reference, racing the
 standalone SVT-AV1 encode; the smaller at equal PSNR-Y is stored and why is recorded. Run as a user
-runs it (the CLI in subprocesses) on a tiny synthetic pair of the same road; the stored drive must
-extract bit for bit as the encoder saw it (libaom's decoder fed the same references), close to
-the source, and pass ``check --deep``."""
+runs it (the CLI in subprocesses, default options) on a tiny synthetic pair of the same road; the
+stored drive must extract bit for bit as the encoder saw it (libaom's decoder fed the same
+references), close to the source, and pass ``check --deep``."""
 
 import hashlib
 import json
@@ -21,6 +21,7 @@ from egovid.dashcam.codec import registry
 from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.extract import baselines
 from egovid.dashcam.ingest import IngestOptions
+from egovid.dashcam.ingest.options import PRESETS
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
 from conftest import assert_one_error, run_cli
@@ -30,7 +31,7 @@ W, H = 192, 108
 
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory):
-    """a, then b (slower, the same road and light) with --joint-codec aom; b's --json report."""
+    """a, then b (slower, the same road and light), both with the default options; b's --json report."""
     d = tmp_path_factory.mktemp("aom")
     noon = Light.preset("noon")
     videos = {}
@@ -43,7 +44,7 @@ def pair(tmp_path_factory):
     assert r.returncode == 0, r.stderr
     js = d / "b.json"
     b_video, b_gps = videos["b"]
-    r = run_cli("dashcam", "ingest", root, b_video, "--gps", b_gps, "--joint-codec", "aom", "--json", js)
+    r = run_cli("dashcam", "ingest", root, b_video, "--gps", b_gps, "--json", js)
     assert r.returncode == 0, r.stderr
     return root, videos, json.loads(js.read_text())
 
@@ -57,7 +58,10 @@ def _segments(root, name):
 
 
 def test_a_piece_is_coded_jointly_in_av1_and_the_choice_recorded(pair):
+    """By default (the realtime preset) the joint candidate is libaom's realtime mode at cpu-used
+    7, flat, at --q + the preset's offset, against drive a."""
     root, _, rep = pair
+    a, _ = _segments(root, "a")
     _, segs = _segments(root, "b")
     assert [p["mode"] for p in rep["pieces"]] == [s.mode for s in segs]
     for seg in segs:  # every piece had drive a as its older drive: both candidates ran, the reason kept
@@ -71,7 +75,11 @@ def test_a_piece_is_coded_jointly_in_av1_and_the_choice_recorded(pair):
         blob = ar.blobs.get(joint[0].blob)
         assert blob[:4] == codec.MAGICS["aom"] and codec.parse_header(blob)[0].codec == "aom"
         assert joint[0].params["choice"].endswith("joint is smaller")
-        assert joint[0].params["realtime"] and joint[0].params["q"] == 32 + registry.BACKENDS["aom"].q_offset
+        rt = PRESETS["realtime"]
+        assert joint[0].params["realtime"] and joint[0].params["q"] == 32 + rt["aom_dq"]
+        assert (joint[0].params["speed"], joint[0].params["gop"], joint[0].params["preset"]) == (7, 1, "realtime")
+        assert joint[0].params["keep_refresh"]
+        assert joint[0].ref_drive_id == a.id
         # The injected reference is what the pictures are predicted from: without it libaom refuses,
         # with a grey picture in its place the pictures come out otherwise.
         with pytest.raises(ValueError, match="needs its baselines"):
@@ -119,14 +127,27 @@ def test_the_joint_codec_must_code_against_the_older_drive(pair):
 
 
 def test_the_presets_joint_codecs():
-    """The archive preset's joint candidate is libaom in good quality at its fastest speed; the
-    realtime preset keeps VP9 (the same settings as before) and takes libaom in realtime mode."""
+    """The archive preset's joint candidate is libaom in good quality at its fastest speed, flat;
+    the default realtime preset's is libaom's realtime mode at cpu-used 7, flat, every reference
+    refresh kept, at --q + 10;
+    --joint-codec vp9 gives the VP9 settings of before (the balanced preset's default)."""
     st = IngestOptions.from_preset("archive").joint_settings(30.0)
-    assert (st.codec, st.realtime, st.speed, st.q, st.threads) == ("aom", False, 6, 44, 1)
-    rt = IngestOptions.from_preset("realtime")
-    assert rt.joint_settings(30.0) == rt.encoder_settings(30.0) and rt.joint_settings(30.0).codec == "vp9"
-    st = IngestOptions.from_preset("realtime", joint_codec="aom").joint_settings(25.0)
-    assert (st.codec, st.realtime, st.speed, st.fps, st.refresh) == ("aom", True, 10, 25, 24)
+    assert (st.codec, st.realtime, st.speed, st.q, st.threads, st.gop, st.keep_refresh) == (
+        "aom",
+        False,
+        6,
+        44,
+        1,
+        1,
+        False,
+    )
+    st = IngestOptions().joint_settings(25.0)
+    assert (st.codec, st.realtime, st.speed, st.q, st.gop, st.fps, st.refresh) == ("aom", True, 7, 42, 1, 25, 24)
+    assert st.keep_refresh
+    assert IngestOptions.from_preset(None) == IngestOptions() and IngestOptions().preset == "realtime"
+    vp9 = IngestOptions.from_preset("realtime", joint_codec="vp9")
+    assert vp9.joint_settings(30.0) == vp9.encoder_settings(30.0) and vp9.joint_settings(30.0).codec == "vp9"
+    assert IngestOptions.from_preset("balanced").joint_settings(30.0).codec == "vp9"
 
 
 DROP_DECODERS = textwrap.dedent(

@@ -29,7 +29,8 @@ FOCAL_HELP = (
 HFOV_HELP = "Field of view in degrees across the picture's long side (alternative to --focal)."
 SOURCE_HELP = (
     "Where the camera motion comes from: auto (the camera's gyro when it has one and did not stabilise "
-    "the picture itself; else its recorded image orientation, else vision) | vision (the pictures) | "
+    "the picture itself, by the file's tag or, without one, measured from the picture; else its recorded "
+    "image orientation, else vision) | vision (the pictures) | "
     "gyro | fused (gyro and vision in one pose graph)."
 )
 
@@ -111,6 +112,13 @@ def motion(
     if cm.sync is not None:
         s = cm.sync
         console.print(f"gyro sync    offset {1000 * s.offset_s:+.1f} ms, r = {s.r_vector:.3f} over {s.frames} frames")
+    if cm.picture_share is not None:
+        p = cm.picture_share
+        share = "n/a" if p.to_dict()["share"] is None else f"{p.share:.2f}"
+        console.print(
+            f"picture/gyro share {share} of the gyro's 2-8 Hz shake ({p.gyro_rms_deg_s:.2f} deg/s RMS, "
+            f"{100 * p.measured:.0f} % measured): {p.verdict}"
+        )
     if cm.comparison is not None:
         c = cm.comparison
         console.print(
@@ -284,6 +292,8 @@ def stabilize_cmd(
             report=report, progress=cb,
         )  # fmt: skip
     s = res.summary()
+    if "motion_source" in s:
+        console.print(f"motion    {s['motion_source']['source']} ({s['motion_source']['reason']})")
     pb, pa = s["planned"]["before"], s["planned"]["after"]
     console.print(
         f"planned   VE {pb['ve']:.3f} → {pa['ve']:.3f}   first-person motion kept "

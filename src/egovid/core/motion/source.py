@@ -14,7 +14,9 @@ Sources (``--source``):
   frame to frame, vision's lack of drift.
 * ``auto`` — the gyro when the file has one, unless the camera stabilised the picture itself
   (GoPro HyperSmooth/EIS): then the body gyro does not describe the picture, and the camera's
-  image orientation is used when recorded, vision otherwise. The reason is reported.
+  image orientation is used when recorded, vision otherwise. Where the file does not say so, it
+  is measured once the gyro is synced: a picture that keeps under half of the gyro's 2-8 Hz shake
+  was stabilised in the camera (:mod:`egovid.core.motion.eis`). The reason is reported.
 
 Each source is a :class:`MotionSource` in the registry :data:`SOURCES` (what it needs, what vision
 measures for it, how its trajectory is solved); :func:`choose_source` resolves a request.
@@ -34,6 +36,7 @@ import numpy as np
 from egovid.core.camera.resolve import CameraModel, resolve_camera
 from egovid.core.camera.telemetry import CameraTelemetry, read_camera_telemetry
 from egovid.core.errors import EgovidError
+from egovid.core.motion import eis
 from egovid.core.motion import gyro as gyro_mod
 from egovid.core.motion.estimate import (
     CONF_MEASURED,
@@ -72,7 +75,10 @@ class CameraMotion:
     ``gyro``, ``camera-orientation``, ``fused``); ``requested``: what was asked; ``reason``: why
     (in words); ``camera``: the intrinsics and their source; ``sync``: the gyro sync;
     ``focal_fit``: the gyro focal-length fit; ``comparison``: vision against the gyro where both
-    ran; ``vision``: the vision estimate where it ran on the whole video.
+    ran; ``vision``: the vision estimate where it ran on the whole video; ``picture_share``: how
+    much of the body gyro's shake the picture keeps (:mod:`egovid.core.motion.eis`) where a body
+    gyro was synced; ``body_sync``: that gyro's sync where it was then set aside (the picture was
+    judged stabilised in the camera).
     """
 
     trajectory: Trajectory
@@ -87,6 +93,20 @@ class CameraMotion:
     comparison: gyro_mod.RateComparison | None = None
     vision: MotionEstimate | None = field(default=None, repr=False)
     seconds: dict[str, float] = field(default_factory=dict)
+    picture_share: eis.PictureShare | None = None
+    body_sync: gyro_mod.GyroSync | None = None
+
+    def source_dict(self) -> dict:
+        """The motion source, deterministic (no timings): what was used, what was asked, why,
+        the sensor's sync and the share of the body gyro's shake the picture keeps."""
+        doc: dict = {"source": self.source, "requested": self.requested, "reason": self.reason}
+        if self.sync is not None:
+            doc["gyro_sync"] = self.sync.to_dict()
+        if self.picture_share is not None:
+            doc["picture_vs_body_gyro"] = self.picture_share.to_dict()
+            if self.body_sync is not None:
+                doc["picture_vs_body_gyro"]["gyro_sync"] = self.body_sync.to_dict()
+        return doc
 
     def to_dict(self) -> dict:
         """JSON-ready summary: source, reason, intrinsics, sync, fit, comparison, confidence."""
@@ -114,6 +134,8 @@ class CameraMotion:
             doc["focal_fit"] = self.focal_fit.to_dict()
         if self.comparison is not None:
             doc["vision_vs_gyro"] = self.comparison.to_dict()
+        if "picture_vs_body_gyro" in (src := self.source_dict()):
+            doc["picture_vs_body_gyro"] = src["picture_vs_body_gyro"]
         if self.vision is not None:
             doc["vision"] = {
                 "failed_pairs": self.vision.failed_pairs,
@@ -144,6 +166,9 @@ class _Run:
     fit: gyro_mod.FocalFit | None = None
     comparison: gyro_mod.RateComparison | None = None
     seconds: dict[str, float] = field(default_factory=dict)
+    requested: str = "auto"
+    picture: eis.PictureShare | None = None
+    body_sync: gyro_mod.GyroSync | None = None
 
 
 @dataclass(frozen=True)
@@ -271,7 +296,12 @@ def _auto_source(telemetry: CameraTelemetry) -> tuple[str, str]:
             f"{name} stabilised the picture itself ({telemetry.stabilization}) and records no image orientation: "
             "its body gyro does not describe the picture",
         )
-    return "gyro", f"{name} records a gyro ({telemetry.imu.rate_hz:.0f} Hz) and did not stabilise the picture"
+    said = (
+        "did not stabilise the picture"
+        if telemetry.electronically_stabilized is False
+        else "does not say it stabilised the picture"
+    )
+    return "gyro", f"{name} records a gyro ({telemetry.imu.rate_hz:.0f} Hz) and {said}"
 
 
 def camera_motion(
@@ -299,6 +329,8 @@ def camera_motion(
     )
     if run.track is not None:
         _sync_sensor(run)
+    if run.track is not None and not run.source.orientation:
+        _check_picture(run)
     if run.track is not None and run.camera.source in FITTED_SOURCES and run.pairs.matches:
         _fit_focal(run)
     if run.camera.readout_ms and run.pairs is not None and run.pairs.matches and len(run.pairs.times) <= run.keep:
@@ -324,6 +356,8 @@ def camera_motion(
         comparison=run.comparison,
         vision=run.vision if run.full_vision else None,
         seconds=run.seconds,
+        picture_share=run.picture,
+        body_sync=run.body_sync,
     )
 
 
@@ -363,7 +397,10 @@ def _start(
     wanted = (track is not None and not fixed) or bool(camera.readout_ms)  # focal fit, rolling shutter
     keep = int(SYNC_SECONDS * 1.5 * max(info.fps, 1.0)) + max(opts.lags) if wanted else 0
     vopts = MotionOptions(**{**opts.__dict__, "keep_matches": keep, "max_frames": window})
-    return _Run(video, source, reason, camera, telemetry, vopts, full_vision, keep, _stage(progress), track, track)
+    return _Run(
+        video, source, reason, camera, telemetry, vopts, full_vision, keep, _stage(progress), track, track,
+        requested=requested,
+    )  # fmt: skip
 
 
 def _sync_sensor(run: _Run) -> None:
@@ -378,6 +415,57 @@ def _sync_sensor(run: _Run) -> None:
     elif not run.source.orientation:
         run.track = gyro_mod.integrate(run.telemetry.imu, bias=run.sync.bias)
     run.seconds["sync"] = time.perf_counter() - t0
+
+
+def _check_picture(run: _Run) -> None:
+    """Measure how much of the synced body gyro's shake the picture keeps (before the focal-length
+    fit, which would absorb part of a missing shake into the focal length). For ``auto`` on a file
+    that does not say the camera stabilised the picture, a picture judged stabilised in the camera
+    sets the body gyro aside: the camera's recorded image orientation is used where there is one,
+    else vision on the whole video; vision asked for by name no longer uses that gyro (bridges,
+    focal-length fit). Otherwise the verdict is added to the reason."""
+    times = run.vision.trajectory.times
+    vision_rates = gyro_mod.frame_rates(times, run.vision.trajectory.R)
+    gyro_rates = gyro_mod.frame_rates(times, gyro_mod.frame_rotations(run.track, run.sync, times))
+    fps = 1.0 / float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+    run.picture = pic = eis.picture_share(vision_rates, gyro_rates, fps, run.vision.confidence[1:] >= CONF_MEASURED)
+    if not pic.stabilised:
+        if run.source.needs_gyro:
+            run.reason += f"; {pic.describe()}: " + (
+                "not stabilised in the camera"
+                if pic.verdict == eis.KEPT
+                else "cannot tell whether the camera stabilised it"
+            )
+        return
+    if not run.source.needs_gyro:  # vision asked for: the body gyro neither bridges nor fits its focal length
+        run.body_sync, run.track, run.gyro_track, run.sync = run.sync, None, None, None
+        run.reason += f"; {pic.describe()}: the camera stabilised the picture itself, so its body gyro is not used"
+        return
+    if run.requested != "auto":
+        run.reason += (
+            f"; note: {pic.describe()}: the camera seems to have stabilised it (--source auto would not use the gyro)"
+        )
+        return
+    note = f"; but {pic.describe()}: the camera stabilised the picture itself, so its body gyro does not describe it"
+    run.body_sync = run.sync
+    tel = run.telemetry
+    if tel.image_orientation is not None:
+        track = gyro_mod.orientation_track(tel.image_orientation)
+        sync = _sync(track, run.vision, True)
+        if sync.trusted:
+            run.source, run.track, run.gyro_track, run.sync = SOURCES["camera-orientation"], track, track, sync
+            run.reason += note + "; its recorded image orientation is used"
+            return
+        note += f" and its recorded image orientation does not match the picture (r = {sync.r_vector:.2f})"
+    run.source, run.track, run.gyro_track, run.sync = SOURCES["vision"], None, None, None
+    run.reason += note + "; vision is used"
+    if not run.full_vision:  # vision measured only the sync window: measure the whole video
+        run.full_vision = True
+        run.vopts = replace(run.vopts, max_frames=None)
+        run.pairs = collect_pairs(run.video, run.camera.intrinsics, run.vopts, run.report("motion (whole video)"))
+        run.vision = solve_motion(
+            run.pairs, run.camera.intrinsics, calibrate=run.vopts.calibrate, detail_hz=run.vopts.detail_hz
+        )
 
 
 def _fit_focal(run: _Run) -> None:

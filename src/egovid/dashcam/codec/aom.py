@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from egovid.core.errors import EgovidError
+from egovid.dashcam.codec.settings import LAYER_PERIODS
 
 # Control ids and flags (libaom 3.6.0: aom/aom.h, aom/aomcx.h, aom/aom_encoder.h, aom/aom_image.h).
 AOM_IMG_FMT_I420 = 0x102
@@ -72,6 +73,9 @@ LAST, LAST2, LAST3, GOLDEN, BWDREF, ALTREF2, ALTREF = range(7)
 SLOTS = 8
 #: The slot the baseline is injected into; never refreshed after a run's keyframe.
 BASELINE_SLOT = 3
+#: The slot the top temporal layer's frames refresh and no frame reads (a shown frame that
+#: refreshes no slot comes out of libaom 3.6's decoder other than the encoder's picture).
+SCRATCH_SLOT = 2
 
 # Byte offsets in aom_codec_enc_cfg_t (904 bytes in 3.6.0; offsetof on its headers).
 _CFG = {
@@ -192,6 +196,7 @@ def _setup(lib: ctypes.CDLL) -> None:
     lib.aom_codec_av1_dx.restype = vp
     lib.aom_codec_enc_config_default.argtypes = [vp, vp, ctypes.c_uint]
     lib.aom_codec_enc_init_ver.argtypes = [vp, vp, vp, ctypes.c_long, ctypes.c_int]
+    lib.aom_codec_enc_config_set.argtypes = [vp, vp]
     lib.aom_codec_dec_init_ver.argtypes = [vp, vp, vp, ctypes.c_long, ctypes.c_int]
     lib.aom_codec_encode.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_ulong, ctypes.c_long]
     lib.aom_codec_get_cx_data.argtypes = [vp, ctypes.POINTER(vp)]
@@ -314,14 +319,21 @@ class _Codec:
             self.close()
 
 
-def ref_config(refs: dict[int, int], refresh: tuple[int, ...]) -> RefConfig:
+def ref_config(refs: dict[int, int], refresh: tuple[int, ...], spare: int = 0) -> RefConfig:
     """The explicit reference structure of one frame: ``refs`` maps the reference types it may
     predict from (:data:`LAST`, ..., :data:`ALTREF`) to slots; ``refresh``: the slots its picture
-    replaces. Unused reference types point at slot 0 (libaom wants every index valid)."""
+    replaces. Unused reference types point at slot ``spare`` (libaom wants every index valid).
+
+    libaom 3.6's realtime mode refreshes only slots that some reference type points at, used or
+    not (``av1_get_refresh_frame_flags``): a refresh of any other slot is silently dropped. With
+    ``spare`` 0 (the flat structure of the first libaom archives, kept for their bytes) a run's 2nd
+    and 3rd frames are therefore not kept in slots 1 and 2, and its 3rd and 4th frames predict from
+    the run's start (the grey frame of a joint run) as LAST; :class:`RunRefs` with
+    ``keep_refresh`` and the layered structure pass the refreshed slot as ``spare``."""
     cfg = RefConfig()
     for t in range(7):
         cfg.reference[t] = int(t in refs)
-        cfg.ref_idx[t] = refs.get(t, 0)
+        cfg.ref_idx[t] = refs.get(t, spare)
     for s in range(SLOTS):
         cfg.refresh[s] = int(s in refresh)
     return cfg
@@ -354,6 +366,9 @@ class AV1Encoder(_Codec):
         usage = AOM_USAGE_REALTIME if settings.realtime else AOM_USAGE_GOOD_QUALITY
         cfg = ctypes.create_string_buffer(_CFG_SIZE + 256)
         _check(self.lib, None, L.aom_codec_enc_config_default(iface, cfg, usage), "read the default configuration")
+
+        self._cfg = cfg
+        self._q = settings.q
 
         def put(name: str, value: int) -> None:
             ctypes.c_uint.from_buffer(cfg, _CFG[name]).value = value
@@ -404,11 +419,18 @@ class AV1Encoder(_Codec):
         refs: dict[int, int] | None,
         refresh: tuple[int, ...] = (),
         baseline: np.ndarray | None = None,
+        q: int | None = None,
+        spare: int = 0,
     ) -> bytes:
         """Encode one padded I420 frame. ``refs`` None: a keyframe (refreshes every slot); else
         the reference types -> slots it may predict from and the slots it refreshes
-        (:func:`ref_config`). ``baseline`` is first copied into :data:`BASELINE_SLOT`. Returns the
-        frame's packet (a temporal unit)."""
+        (:func:`ref_config`). ``baseline`` is first copied into :data:`BASELINE_SLOT`. ``q``: the
+        frame's quantiser (0-63), kept for the frames after it (None: the one in force; the
+        encoder's configuration is changed only when it differs); ``spare``: the slot unused
+        reference types point at (:func:`ref_config`). Returns the frame's packet (a temporal
+        unit)."""
+        if q is not None and q != self._q:
+            self.set_quantizer(q)
         if refs is None:
             if baseline is not None:
                 raise ValueError("no reference injection on a keyframe")
@@ -418,10 +440,22 @@ class AV1Encoder(_Codec):
                 raise ValueError("the first frame must be a keyframe")
             if baseline is not None:
                 self.set_reference(baseline, BASELINE_SLOT)
-            cfg = ref_config(refs, refresh)
+            cfg = ref_config(refs, refresh, spare)
             self._control(AV1E_SET_SVC_REF_FRAME_CONFIG, ctypes.byref(cfg))
             flags = 0
         return self._encode(frame, flags)
+
+    def set_quantizer(self, q: int) -> None:
+        """Code the next frames at fixed quantiser ``q`` (0-63): the configuration's minimum and
+        maximum quantiser set to it (``aom_codec_enc_config_set``; libaom 3.6 has no per-frame
+        quantiser control)."""
+        if not 0 <= q <= 63:
+            raise ValueError(f"quantiser {q} is outside 0-63")
+        for name in ("rc_min_quantizer", "rc_max_quantizer"):
+            ctypes.c_uint.from_buffer(self._cfg, _CFG[name]).value = q
+        _check(self.lib, self.ctx, self.lib.lib.aom_codec_enc_config_set(self.ctx, self._cfg), "set the quantiser")
+        self._control(AOME_SET_CQ_LEVEL, ctypes.c_int(q))
+        self._q = q
 
     def _encode(self, frame: np.ndarray, flags: int) -> bytes:
         L = self.lib.lib
@@ -521,34 +555,103 @@ def padded_size(width: int, height: int) -> tuple[int, int]:
     return (width + _PAD - 1) // _PAD * _PAD, (height + _PAD - 1) // _PAD * _PAD
 
 
-def run_structure(n: int, joint: bool, with_baseline: list[bool] | None = None) -> list[tuple[str, dict, tuple]]:
-    """The frames of one random-access run of ``n`` frames as libaom codes them: (role, references
-    type -> slot, refreshed slots) per packet, in coding (= display) order.
+def layer_of(j: int, period: int) -> int:
+    """The temporal layer (0 = base) of the ``j``-th frame of a random-access run: with period 4,
+    frames 0 mod 4 are the base layer, 2 mod 4 layer 1 and odd frames layer 2; with period 2 odd
+    frames are layer 1; with period 1 every frame is the base layer."""
+    if period <= 1 or j % period == 0:
+        return 0
+    return 1 if period == 4 and j % 4 == 2 else period.bit_length() - 1
 
-    Standalone: ``key``, then ``p`` frames from the three previous frames (LAST, LAST2, LAST3 in
-    slots 0-2, the oldest refreshed). Joint: two undisplayed grey frames (``dummy``: a keyframe,
-    then a frame that refreshes slot 0 — libaom's good-quality mode uses no reference on the first
-    frame after a keyframe), ``ra``: the run's first frame from the baseline alone (LAST -> the
-    baseline's slot), then ``p`` frames from the previous frames and the baseline (GOLDEN). A frame
-    whose ``with_baseline`` is False (no baseline for it) does not refer to the baseline's slot."""
+
+class RunRefs:
+    """The reference structure of one random-access run, frame by frame in coding (= display)
+    order, as the encoder is told it (the decoder reads it from the bitstream). Its one copy:
+    :func:`run_structure` and :mod:`egovid.dashcam.codec.aom_segment` both follow it.
+
+    Flat (``period`` 1): each frame predicts from its three previous frames (LAST, LAST2, LAST3
+    in slots 0-2, the oldest refreshed) and, where it has one, the baseline (GOLDEN; LAST for a
+    joint run's first frame, which has no previous frame). Temporal layers (``period`` 2 or 4,
+    :func:`layer_of`): a base-layer frame predicts from the run's previous base-layer frame, an
+    upper-layer frame from the nearest frames of the layers below it before it (LAST the newer,
+    ALTREF the older), every frame also from the baseline (GOLDEN); a layer's newest frame is held
+    in slot ``layer`` (0 or 1), frames of the top layer refresh :data:`SCRATCH_SLOT`, which no
+    frame reads. Low delay either way: no frame is coded out of display order. ``joint``: the run
+    starts from the baseline (after two undisplayed grey frames, which leave slot 0 grey) rather
+    than from a keyframe. ``keep_refresh``: every refresh is kept in libaom's realtime mode
+    (:meth:`spare`; always so in layers); without it a flat run is coded as by the first libaom
+    archives, byte for byte."""
+
+    def __init__(self, joint: bool, period: int = 1, keep_refresh: bool = False) -> None:
+        if period not in LAYER_PERIODS:
+            raise ValueError(f"layer period {period} is not one of {LAYER_PERIODS}")
+        self.joint, self.period, self.keep_refresh = joint, period, keep_refresh or period > 1
+        self.recent: list[int] = [] if joint else [0]  # flat: after a keyframe every slot holds it
+        self.held: dict[int, tuple[int, int]] = {} if joint else {0: (0, 0)}  # layer -> (frame, slot)
+        self.j = 0 if joint else 1  # the run's next frame (a standalone run's frame 0 is its keyframe)
+        self.top = layer_of(1, period)
+
+    def next(self, with_baseline: bool) -> tuple[dict[int, int], tuple[int, ...], int]:
+        """(references type -> slot, refreshed slots, temporal layer) of the run's next frame."""
+        j, self.j = self.j, self.j + 1
+        if self.period == 1:
+            return (*self._flat(with_baseline), 0)
+        layer = layer_of(j, self.period)
+        below = sorted((f for lay, f in self.held.items() if lay < layer or lay == layer == 0), reverse=True)
+        refs = dict(zip((LAST, ALTREF), (slot for _, slot in below), strict=False))
+        if with_baseline:
+            refs = {**refs, GOLDEN: BASELINE_SLOT} if refs else {LAST: BASELINE_SLOT}
+        elif not refs:
+            refs = {LAST: 0}  # a joint run's first frame without its baseline: from the grey frame
+        if layer == self.top and layer > 0:
+            return refs, (SCRATCH_SLOT,), layer
+        self.held[layer] = (j, layer)
+        return refs, (layer,), layer
+
+    def _flat(self, with_baseline: bool) -> tuple[dict[int, int], tuple[int, ...]]:
+        refs = dict(zip((LAST, LAST2, LAST3), self.recent, strict=False))
+        if with_baseline:
+            refs = {**refs, GOLDEN: BASELINE_SLOT} if refs else {LAST: BASELINE_SLOT}
+        elif not refs:
+            refs = {LAST: 0}  # a joint run's first frame without its baseline: from the grey frame
+        free = [s for s in (0, 1, 2) if s not in self.recent]
+        slot = free[0] if free else self.recent[-1]
+        self.recent = [slot] + [s for s in self.recent if s != slot]
+        return refs, (slot,)
+
+    def spare(self, refresh: tuple[int, ...]) -> int:
+        """The slot a frame's unused reference types point at (:func:`ref_config`): the refreshed
+        slot with ``keep_refresh`` (else libaom's realtime mode would not refresh it), 0 without
+        (as the first libaom archives were coded)."""
+        return refresh[0] if self.keep_refresh and refresh else 0
+
+    def q_offset(self, layer: int, top_dq: int) -> int:
+        """What a frame of ``layer`` adds to the segment's quantiser: ``top_dq`` on the top layer,
+        in equal steps from 0 on the base (period 4, ``top_dq`` 12: 0, +6, +12)."""
+        return top_dq * layer // self.top if self.top else 0
+
+
+def run_structure(
+    n: int, joint: bool, with_baseline: list[bool] | None = None, period: int = 1
+) -> list[tuple[str, dict, tuple]]:
+    """The frames of one random-access run of ``n`` frames as libaom codes them: (role, references
+    type -> slot, refreshed slots) per packet, in coding (= display) order (:class:`RunRefs`).
+
+    Standalone: ``key``, then ``p`` frames. Joint: two undisplayed grey frames (``dummy``: a
+    keyframe, then a frame that refreshes slot 0 — libaom's good-quality mode uses no reference on
+    the first frame after a keyframe), ``ra``: the run's first frame from the baseline alone (LAST
+    -> the baseline's slot), then ``p`` frames from earlier frames and the baseline (GOLDEN). A
+    frame whose ``with_baseline`` is False (no baseline for it) does not refer to the baseline's
+    slot."""
     out: list[tuple[str, dict, tuple]] = []
-    recent: list[int] = []
     if joint:
         out += [("dummy", {}, tuple(range(SLOTS))), ("dummy", {LAST: 0}, (0,))]
     else:
         out.append(("key", {}, tuple(range(SLOTS))))
-        recent = [0]  # after a keyframe every slot holds it
+    run = RunRefs(joint, period)
     for k in range(0 if joint else 1, n):
-        refs = dict(zip((LAST, LAST2, LAST3), recent, strict=False))
-        base = joint and (with_baseline is None or with_baseline[k])
-        if base:
-            refs = {**refs, GOLDEN: BASELINE_SLOT} if refs else {LAST: BASELINE_SLOT}
-        elif not refs:
-            refs = {LAST: 0}  # a joint run's first frame without its baseline: from the grey frame
-        free = [s for s in (0, 1, 2) if s not in recent]
-        slot = free[0] if free else recent[-1]
-        out.append(("ra" if joint and k == 0 else "p", refs, (slot,)))
-        recent = [slot] + [s for s in recent if s != slot]
+        refs, refresh, _ = run.next(joint and (with_baseline is None or with_baseline[k]))
+        out.append(("ra" if joint and k == 0 else "p", refs, refresh))
     return out
 
 

@@ -7,9 +7,11 @@ display order; :func:`egovid.dashcam.codec.aom.run_structure` gives each frame's
 Runs of ``refresh`` frames decode on their own. A run whose first frame has a baseline
 (:data:`~egovid.dashcam.codec.segment.START_BASELINE_HELD`) begins with two undisplayed grey
 frames (a keyframe, then a frame refreshing one slot) and its first frame predicted from the
-baseline alone; every later frame of it predicts from its three previous frames and, where it has
-one, its baseline, which both sides copy into :data:`~egovid.dashcam.codec.aom.BASELINE_SLOT`
-before the frame (``AV1_SET_REFERENCE``). A run without a baseline for its first frame
+baseline alone; every later frame of it predicts from earlier frames of the run (flat: its three
+previous frames; in temporal layers, :class:`~egovid.dashcam.codec.aom.RunRefs`: the nearest frames
+of the layers below, upper layers at a coarser quantiser) and, where it has one, its baseline,
+which both sides copy into :data:`~egovid.dashcam.codec.aom.BASELINE_SLOT` before the frame
+(``AV1_SET_REFERENCE``). A run without a baseline for its first frame
 (:data:`~egovid.dashcam.codec.segment.START_KEY`) is plain libaom AV1: nothing is injected in it.
 The bitstream is AV1, but only a decoder that repeats the injections (libaom's, through
 :mod:`egovid.dashcam.codec.aom`) reproduces the pictures; the digests are taken from the
@@ -44,28 +46,6 @@ def aom_settings(settings: EncoderSettings) -> aom.AomSettings:
     )
 
 
-class _Run:
-    """The reference structure of the run being coded (both sides follow it frame by frame):
-    the slots holding its newest frames (LAST, LAST2, LAST3) among 0-2 and whether the baseline
-    slot belongs to it (a run started from a baseline)."""
-
-    def __init__(self, joint: bool) -> None:
-        self.joint = joint
-        self.recent: list[int] = [] if joint else [0]  # after a keyframe every slot holds it
-
-    def next(self, with_baseline: bool) -> tuple[dict[int, int], tuple[int, ...]]:
-        """(references, refreshed slots) of the run's next frame."""
-        refs = dict(zip((aom.LAST, aom.LAST2, aom.LAST3), self.recent, strict=False))
-        if with_baseline:
-            refs = {**refs, aom.GOLDEN: aom.BASELINE_SLOT} if refs else {aom.LAST: aom.BASELINE_SLOT}
-        elif not refs:
-            refs = {aom.LAST: 0}  # the grey frame
-        free = [s for s in (0, 1, 2) if s not in self.recent]
-        slot = free[0] if free else self.recent[-1]
-        self.recent = [slot] + [s for s in self.recent if s != slot]
-        return refs, (slot,)
-
-
 class _AomCoder:
     """libaom's encoder (and the verifying decoder, when it follows) for one segment."""
 
@@ -77,11 +57,15 @@ class _AomCoder:
         self.verify_runs = verify_runs
         self.follow = False
         self.grey = np.full((self.ph * 3 // 2, self.pw), 128, np.uint8)
-        self.run = _Run(False)
+        self.q, self.top_dq, self.period = settings.q, settings.gop_dq, settings.gop
+        self.keep_refresh = settings.keep_refresh
+        self.run = aom.RunRefs(False, self.period, settings.keep_refresh)
 
-    def code(self, frame, refs, refresh=(), baseline=None) -> tuple[bytes, np.ndarray]:
+    def code(self, frame, refs, refresh=(), baseline=None, layer=0) -> tuple[bytes, np.ndarray]:
         t0 = time.perf_counter()
-        pkt = self.enc.encode(frame, refs, refresh, baseline)
+        q = min(63, self.q + self.run.q_offset(layer, self.top_dq))
+        spare = self.run.spare(refresh) if refs is not None else 0
+        pkt = self.enc.encode(frame, refs, refresh, baseline, q, spare)
         rec = self.enc.reconstruction()
         t1 = time.perf_counter()
         self.clock["encode"] = self.clock.get("encode", 0.0) + t1 - t0
@@ -94,8 +78,8 @@ class _AomCoder:
             self.clock["verify"] = self.clock.get("verify", 0.0) + time.perf_counter() - t1
         return pkt, rec
 
-    def finish(self, k: int, frame: np.ndarray, refs, refresh=(), baseline=None) -> None:
-        pkt, rec = self.code(vpx.pad_i420(frame, self.pw, self.ph), refs, refresh, baseline)
+    def finish(self, k: int, frame: np.ndarray, refs, refresh=(), layer=0, baseline=None) -> None:
+        pkt, rec = self.code(vpx.pad_i420(frame, self.pw, self.ph), refs, refresh, baseline, layer)
         self.out.emit(pkt, k)
         self.out.picture(k, frame, vpx.crop_i420(rec, self.w, self.h))
 
@@ -103,7 +87,7 @@ class _AomCoder:
         """The run's first frame: a keyframe, or (with a baseline) from it alone after the two
         undisplayed grey frames."""
         self.follow = self.dec is not None and (self.verify_runs is None or self.verify_runs(len(self.out.starts)))
-        self.run = _Run(b0 is not None)
+        self.run = aom.RunRefs(b0 is not None, self.period, self.keep_refresh)
         if b0 is None:
             self.out.begin_run(segment.START_KEY)
             self.finish(k0, first, None)
@@ -143,8 +127,11 @@ def encode_segment(
     on_run: Callable[[int, int, float], None] | None = None,
 ) -> segment.EncodedSegment:
     """libaom AV1: encode unpadded I420 frames; ``baselines(k)`` gives frame k's padded baseline
-    (or None). The same contract as :func:`egovid.dashcam.codec.segment.encode_segment` (low delay:
-    ``settings.gop`` is not used)."""
+    (or None). The same contract as :func:`egovid.dashcam.codec.segment.encode_segment`;
+    ``settings.gop`` is the temporal-layer period (:class:`~egovid.dashcam.codec.aom.RunRefs`: 1
+    flat, 2 or 4 layers, the top layer at ``q + gop_dq``). Low delay either way: the header
+    records GOP 1 (one packet per frame in display order), whatever the layers, so the decoder
+    and the container are those of a flat segment."""
     aom.self_test()
     out = segment.SegmentWriter(
         width, height, settings.refresh, spool=spool, keep_recon=keep_recon, progress=progress, on_run=on_run

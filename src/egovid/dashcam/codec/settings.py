@@ -12,6 +12,11 @@ from egovid.core.errors import EgovidError
 #: all; libaom's good-quality mode stops at 9 and codes 7-9 as 6, its realtime mode goes to 10).
 SPEEDS = {"vp9": (0, 9), "av1": (0, 13), "aom": (0, 10)}
 
+#: Temporal-layer periods of a libaom segment (its ``gop``): 1 = flat (every frame from the one
+#: before, the structure of the first libaom archives), 2 or 4 = temporal layers
+#: (:func:`egovid.dashcam.codec.aom.layer_of`).
+LAYER_PERIODS = (1, 2, 4)
+
 #: The archive's coding defaults, their one copy: :class:`~egovid.dashcam.ingest.options.IngestOptions`
 #: takes them, and ``egovid dashcam ingest --help`` shows them without importing the ingest (OpenCV,
 #: SciPy): quantiser ``q`` (libvpx's 0-63 scale), VP9 anchor spacing ``gop`` and random-access
@@ -27,14 +32,18 @@ class EncoderSettings:
     cpu-used (0-9), SVT-AV1 preset (0-13) or libaom cpu-used (0-10); ``realtime``: libvpx's
     realtime deadline, libaom's realtime mode; ``threads``: encoder threads (SVT-AV1: its logical
     processors); ``tile_columns`` (log2) and ``row_mt``: libvpx's and libaom's multi-threading (the
-    bitstream decodes to the same pictures whatever the threads); coding structure ``gop`` (VP9
-    only: 1 = low delay; G > 1 = every G-th
+    bitstream decodes to the same pictures whatever the threads); coding structure ``gop`` (libaom: the temporal-layer
+    period, 1 flat, 2 or 4 layers in realtime mode only, the top layer at ``q + gop_dq``,
+    :class:`~egovid.dashcam.codec.aom.RunRefs`; VP9: 1 = low delay; G > 1 = every G-th
     frame an *anchor* predicted from the anchor before it, the frames between coded after it from
     the previous frame and the anchor ahead, at quantiser ``q + gop_dq``; see
     :mod:`egovid.dashcam.codec.segment`; SVT-AV1 chooses its own hierarchical structure) and
     ``refresh``, the random-access period in frames (0 = only the first frame; the keyframe
     spacing of an AV1 segment); ``start_speed``: VP9 cpu-used for the first frame of a joint run,
-    the one predicted from the baseline alone (0 = ``speed``)."""
+    the one predicted from the baseline alone (0 = ``speed``); ``keep_refresh`` (libaom): every
+    slot refresh of the structure is kept in libaom's realtime mode, which otherwise drops those
+    of slots no reference type points at (:class:`~egovid.dashcam.codec.aom.RunRefs`; False: the
+    flat structure of the first libaom archives, byte for byte; layers always keep theirs)."""
 
     q: int
     speed: int
@@ -48,6 +57,7 @@ class EncoderSettings:
     tile_columns: int = 0
     row_mt: bool = False
     start_speed: int = 0
+    keep_refresh: bool = False
 
     def __post_init__(self) -> None:
         if self.codec not in SPEEDS:
@@ -71,5 +81,13 @@ class EncoderSettings:
             )
         if not 1 <= self.gop <= 64:
             raise EgovidError(f"GOP length {self.gop} is outside 1-64", "use 1 (low delay) or 8")
+        if self.codec == "aom" and self.gop not in LAYER_PERIODS:
+            raise EgovidError(
+                f"libaom temporal-layer period {self.gop} is not one of {LAYER_PERIODS}", "use 1 (flat) or 4"
+            )
+        if self.codec == "aom" and self.gop > 1 and not self.realtime:
+            # good quality does not keep to the explicit structure (a decoder given all but the
+            # top layer fails on the frames after it)
+            raise EgovidError("libaom temporal layers need its realtime mode", "use layer period 1 (flat)")
         if not 0 <= self.gop_dq <= 63:
             raise EgovidError(f"quantiser offset {self.gop_dq} is outside 0-63", "use e.g. 12")

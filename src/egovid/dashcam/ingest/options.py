@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from egovid.core.errors import EgovidError
 from egovid.dashcam.align import ALIGNERS
 from egovid.dashcam.codec import registry
-from egovid.dashcam.codec.settings import ARCHIVE_DEFAULTS, EncoderSettings
+from egovid.dashcam.codec.settings import ARCHIVE_DEFAULTS, LAYER_PERIODS, EncoderSettings
 
 BASELINE_ALIGN = ("none", "gain", "similarity")
 CODECS = ("av1", "vp9")  # what standalone pieces can be stored in
@@ -19,16 +19,22 @@ CODECS = ("av1", "vp9")  # what standalone pieces can be stored in
 #: benchmarks/dashcam_ingest_speed.py (speed) and benchmarks/dashcam_bdrate.py (savings).
 #: ``codec``/``av1_speed``: the codec of pieces stored standalone (first drives, pieces with no
 #: older drive of their path and light, and joint pieces where the standalone encode is smaller);
-#: the VP9 settings (``realtime``, ``speed``, ...) code the joint candidates.
+#: the VP9 settings (``realtime``, ``speed``, ...) code VP9 joint candidates and VP9 pieces.
 #: ``joint_codec``: the codec of the joint candidate (``vp9``: libvpx at ``speed``; ``aom``: AV1 by
-#: libaom at cpu-used ``aom_speed``, its realtime mode where ``realtime``, else good quality).
+#: libaom at cpu-used ``aom_speed``, its realtime mode where ``realtime``, else good quality, at
+#: quantiser ``--q`` + ``aom_dq``, in temporal layers of period ``aom_gop`` (1: flat), every
+#: reference refresh kept where ``aom_keep_refresh``).
 PRESETS: dict[str, dict] = {
-    # SVT-AV1 preset 10 for standalone pieces; libvpx's realtime deadline at its fastest speed for
-    # the joint candidate, two threads sharing rows and two tile columns (one column saves 0.6
-    # points more but root drives ingest slower), the first frame of each joint random-access run
-    # at cpu-used 5 (0.6 points, no measurable time); one set of ORB key points per frame shared by
-    # the search and the refinement, which measure every 2nd frame (the others interpolated).
-    # docs/dashcam.md, "Why the realtime deadline saved less".
+    # SVT-AV1 preset 10 for standalone pieces; the joint candidate in AV1 by libaom's realtime
+    # mode at cpu-used 7, flat (each frame from the ones before it and the older drive), every
+    # reference refresh kept, at --q + 10 (about SVT-AV1's PSNR-Y at --q + 14), two threads
+    # sharing rows and two tile columns: new drives of the day set -26.1 % BD-rate (PSNR-Y) against
+    # plain SVT-AV1 preset 10 through `egovid dashcam ingest` (VP9 joint: +0.3 %, it lost every
+    # piece), the whole archive -41.9 % against the VP9 archive of before (docs/dashcam.md,
+    # "Codecs"). Temporal layers (aom_gop 4, base at --q + 5) measured -19.6 %: not taken.
+    # The VP9 settings (libvpx realtime at its fastest, first frame of a joint run at cpu-used 5)
+    # serve --joint-codec vp9 and --codec vp9. One set of ORB key points per frame shared by the
+    # search and the refinement, which measure every 2nd frame (the others interpolated).
     "realtime": {
         "codec": "av1",
         "av1_speed": 10,
@@ -42,8 +48,11 @@ PRESETS: dict[str, dict] = {
         "refine_features": 0,
         "align_every": 2,
         "verify_share": 0.25,
-        "joint_codec": "vp9",
-        "aom_speed": 10,
+        "joint_codec": "aom",
+        "aom_speed": 7,
+        "aom_dq": 10,
+        "aom_gop": 1,
+        "aom_keep_refresh": True,
     },
     # SVT-AV1 preset 8; libvpx's good-quality deadline at its fastest speed, two threads sharing
     # rows and two tile columns: the different-day saving of the archive preset's deadline
@@ -64,6 +73,9 @@ PRESETS: dict[str, dict] = {
         "verify_share": 1.0,
         "joint_codec": "vp9",
         "aom_speed": 6,
+        "aom_dq": registry.BACKENDS["aom"].q_offset,
+        "aom_gop": 1,
+        "aom_keep_refresh": False,
     },
     # SVT-AV1 preset 6; the joint candidate in AV1 by libaom's good-quality mode at cpu-used 6 (its
     # fastest), one thread: the smallest files (docs/dashcam.md, "Codecs").
@@ -82,6 +94,9 @@ PRESETS: dict[str, dict] = {
         "verify_share": 1.0,
         "joint_codec": "aom",
         "aom_speed": 6,
+        "aom_dq": registry.BACKENDS["aom"].q_offset,
+        "aom_gop": 1,
+        "aom_keep_refresh": False,
     },
 }
 DEFAULT_PRESET = "realtime"
@@ -121,9 +136,13 @@ class IngestOptions:
     ``align_every``: the ORB aligners search and refine every n-th frame, the matches of the
     frames between interpolated (1: every frame);
     ``joint_codec``: the codec of a piece's joint candidate, coded against the older drive
-    (``vp9`` | ``aom``: AV1 by libaom, at libaom quantiser ``q`` +
-    :attr:`~egovid.dashcam.codec.registry.Backend.q_offset`); ``aom_speed``: its libaom cpu-used
-    (0-9 in good quality, 0-10 with ``realtime``);
+    (``vp9`` | ``aom``: AV1 by libaom); ``aom_speed``: its libaom cpu-used (0-9 in good quality,
+    0-10 with ``realtime``); ``aom_dq``: what its libaom quantiser adds to ``q`` (the base layer's,
+    with temporal layers); ``aom_gop``: its temporal-layer period (1 flat; 2 or 4 layers, the top
+    layer at ``+12`` over the base, :class:`~egovid.dashcam.codec.aom.RunRefs`);
+    ``aom_keep_refresh``: its flat structure keeps every reference refresh in libaom's realtime
+    mode (:class:`~egovid.dashcam.codec.settings.EncoderSettings` ``keep_refresh``; False: coded as
+    the first libaom archives);
     ``preset``: the name of the preset these came from (recorded with each segment).
     """
 
@@ -148,6 +167,9 @@ class IngestOptions:
     align_every: int = _D["align_every"]
     joint_codec: str = _D["joint_codec"]
     aom_speed: int = _D["aom_speed"]
+    aom_dq: int = _D["aom_dq"]
+    aom_gop: int = _D["aom_gop"]
+    aom_keep_refresh: bool = _D["aom_keep_refresh"]
     preset: str | None = DEFAULT_PRESET
 
     @classmethod
@@ -178,6 +200,10 @@ class IngestOptions:
             raise EgovidError(f"{self.refine_features} refinement features is outside 100-5000", "use 0 or 1000")
         if not 1 <= self.align_every <= 4:
             raise EgovidError(f"aligning every {self.align_every}th frame is outside 1-4", "use 1 or 2")
+        if not 0 <= self.aom_dq <= 30:
+            raise EgovidError(f"libaom quantiser offset {self.aom_dq} is outside 0-30", "use the preset's")
+        if self.aom_gop not in LAYER_PERIODS:
+            raise EgovidError(f"libaom layer period {self.aom_gop} is not one of {LAYER_PERIODS}", "use 1 or 4")
         if not 0.0 < self.verify_share <= 1.0:
             raise EgovidError(f"verifying a share of {self.verify_share} of the runs is outside (0, 1]", "use 1")
         if not 1 <= self.refine_radius <= 10:
@@ -215,18 +241,21 @@ class IngestOptions:
 
     def joint_settings(self, fps: float) -> EncoderSettings:
         """The settings of a piece's joint candidate (``joint_codec``): :meth:`encoder_settings`
-        for VP9; libaom at ``q`` + its offset, cpu-used ``aom_speed``, the same threading and
-        random-access period otherwise (low delay: no anchors)."""
+        for VP9; libaom at ``q + aom_dq``, cpu-used ``aom_speed``, layer period ``aom_gop``, the
+        same threading and random-access period otherwise (low delay: nothing coded out of
+        order)."""
         vp9 = self.encoder_settings(fps)
         b = registry.backend(self.joint_codec)
         if b.name == vp9.codec:
             return vp9
         return EncoderSettings(
-            q=min(63, self.q + b.q_offset),
+            q=min(63, self.q + self.aom_dq),
             speed=self.aom_speed,
             codec=b.name,
             realtime=self.realtime,
             fps=vp9.fps,
+            gop=self.aom_gop,
+            keep_refresh=self.aom_keep_refresh,
             refresh=self.refresh,
             threads=self.threads,
             tile_columns=self.tile_columns,

@@ -67,9 +67,10 @@ class _Pipe:
         self.q: queue.Queue = queue.Queue(size)
         self.stop = threading.Event()
         self.dropped = threading.Event()  # its encoder lost the early choice: items go nowhere
+        self.ended = threading.Event()  # the same, but its encoder is told the stream ends (and flushes)
 
     def put(self, item) -> None:
-        if self.dropped.is_set():
+        if self.dropped.is_set() or self.ended.is_set():
             return
         while not self.stop.is_set():
             try:
@@ -90,10 +91,12 @@ class _Pipe:
             except queue.Empty:
                 if self.dropped.is_set():
                     raise _DroppedError from None
+                if self.ended.is_set():
+                    return
                 continue
             if self.dropped.is_set():
                 raise _DroppedError
-            if item is self._END:
+            if item is self._END or self.ended.is_set():
                 return
             if isinstance(item, BaseException):
                 raise item
@@ -389,10 +392,12 @@ class _Referee:
     first ``at`` frames (:data:`DECIDE_RUNS` runs), :func:`keep_joint` on those frames, and the
     other encoder is stopped (its pipe dropped; the producer stops aligning if it was the joint).
 
-    An SVT-AV1 encoder is never stopped: its context freed with frames in flight and no end of
-    stream can block for ever in ``svt_av1_enc_deinit`` ("deinit called without sending EOS!")
-    while the GIL is held, which froze a whole test run once. A losing SVT-AV1 encode runs to
-    the end and is discarded."""
+    An SVT-AV1 encoder is never dropped mid-stream: its context freed with frames in flight and no
+    end of stream can block for ever in ``svt_av1_enc_deinit`` ("deinit called without sending
+    EOS!") while the GIL is held, which froze a whole test run once. A losing SVT-AV1 encode is
+    ended instead (its pipe's ``ended``: the frames stop, it sends the end of stream and flushes
+    as at the end of a piece) and what it coded is discarded; running it to the end took a core
+    from the joint encode for the whole drive."""
 
     def __init__(self, jobs: dict, at: int) -> None:
         self.jobs, self.at = jobs, at
@@ -411,8 +416,8 @@ class _Referee:
                     kept, why = keep_joint(self.seen["joint"], self.seen["standalone"])
                     self.loser = "standalone" if kept else "joint"
                     self.why = f"first {frames} frames: {why}"
-                    if self.jobs[self.loser]["settings"].codec != "av1":
-                        self.jobs[self.loser]["pipe"].dropped.set()
+                    pipe = self.jobs[self.loser]["pipe"]
+                    (pipe.ended if self.jobs[self.loser]["settings"].codec == "av1" else pipe.dropped).set()
 
         return on_run
 
@@ -463,7 +468,11 @@ class _Encoders:
 
         def work() -> None:
             try:
-                job["seg"] = _encode_from(pipe, self.clock, stage, w, h, settings, spool=spool, **kw)
+                seg = _encode_from(pipe, self.clock, stage, w, h, settings, spool=spool, **kw)
+                if pipe.ended.is_set():  # lost the early choice and ended short: nothing to keep
+                    job["dropped"] = True
+                else:
+                    job["seg"] = seg
             except _DroppedError:
                 job["dropped"] = True
             except BaseException as exc:
@@ -560,6 +569,7 @@ def _encoded(run, opts, enc, sha, kept, why, encoders, alone, joint, t_start) ->
         "realtime": st.realtime,
         "threads": st.threads,
         "gop": st.gop,
+        "keep_refresh": st.keep_refresh,
         "refresh": st.refresh,
         "preset": opts.preset,
         "recon_digest": enc.recon_digest,

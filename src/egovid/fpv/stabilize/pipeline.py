@@ -24,13 +24,10 @@ runs it through :func:`egovid.fpv.stabilize.run.stabilize_video`, which resolves
 
 from __future__ import annotations
 
-import contextlib
-import multiprocessing
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import TypeVar
 
@@ -43,6 +40,7 @@ from egovid.core.motion.estimate import estimate_motion
 from egovid.core.motion.rolling_shutter import frame_rates, row_offsets
 from egovid.core.motion.source import CameraMotion
 from egovid.core.rotations import matrix_from_euler, so3_exp
+from egovid.core.side_call import SideCall, can_fork
 from egovid.core.trajectory import Trajectory
 from egovid.core.video import probe
 from egovid.fpv.perception.model import ViewingModel, from_model_rate, to_model_rate
@@ -72,7 +70,8 @@ class StabilizeResult:
     1/keep); scores of the path as ``planned``; ``before``/``after`` measured on the decoded input
     and output (None with ``measure=False``); ``seconds`` per stage (not in :meth:`summary`,
     which is deterministic); ``camera_motion`` the input's motion where
-    :func:`egovid.fpv.stabilize.run.stabilize_video` estimated it (its times not in ``seconds``)."""
+    :func:`egovid.fpv.stabilize.run.stabilize_video` estimated it (its times not in ``seconds``; its
+    source, reason, sync and picture-vs-gyro share in :meth:`summary` under ``motion_source``)."""
 
     output: str
     times: np.ndarray
@@ -109,6 +108,8 @@ class StabilizeResult:
             "notes": self.fitted.notes if self.fitted else [],
             "params": self.params,
         }
+        if self.camera_motion is not None:
+            out["motion_source"] = self.camera_motion.source_dict()
         if self.before is not None and self.after is not None:
             out["measured"] = {"before": self.before.to_dict(), "after": self.after.to_dict()}
             out["fpmi_retention_measured"] = _retention(self.before.pure_fpm_ve, self.after.pure_fpm_ve)
@@ -149,18 +150,9 @@ def shake_warnings(
     ]
 
 
-@contextlib.contextmanager
-def _side_process() -> Iterator[ProcessPoolExecutor | None]:
-    """One forked worker process; None where the platform cannot fork or this process may not
-    have children (a daemonic process: Dask workers, multiprocessing pool workers)."""
-    if "fork" not in multiprocessing.get_all_start_methods() or multiprocessing.current_process().daemon:
-        yield None
-        return
-    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
-    try:
-        yield pool
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+#: How long the plan waits for the side process's axis beyond the time the main axis took (×, and
+#: at least the seconds below) before it plans that axis itself (:class:`SideCall`).
+SIDE_PATIENCE = (4.0, 120.0)
 
 
 def plan_motion(
@@ -193,17 +185,19 @@ def plan_motion(
     # Yaw and pitch are planned independently (each axis's windows see only its own angle), so
     # pitch runs in a forked process while yaw runs here: the optimiser is single-threaded
     # Python and the second core would idle. Roll waits for both (its intervals move with them).
-    with _side_process() as side:
-        pending = {}
-        if side is not None and "pitch" in axes:
-            col = AXES.index("pitch")
-            pending["pitch"] = side.submit(
-                optimize_axis, a30[:, col], "pitch", intr.hfov_deg, intr.vfov_deg, model, opts, context=edited30
-            )
+    pending: dict[str, SideCall] = {}
+    if can_fork() and "pitch" in axes:
+        col = AXES.index("pitch")
+        pending["pitch"] = SideCall(
+            optimize_axis, a30[:, col], "pitch", intr.hfov_deg, intr.vfov_deg, model, opts, context=edited30
+        )
+    try:
+        t0 = time.perf_counter()
         for step, name in enumerate(axes):
             col = AXES.index(name)
             if name in pending:
-                plans[name] = pending[name].result()
+                factor, least = SIDE_PATIENCE
+                plans[name] = pending.pop(name).result(max(least, factor * (time.perf_counter() - t0)))
             else:
                 # Roll's intervals are shifted by the yaw and pitch the viewer will see (eq. 8.2-8.3).
                 plans[name] = optimize_axis(
@@ -212,6 +206,9 @@ def plan_motion(
             edited30[:, col] = plans[name].edited
             if progress is not None:
                 progress(step + 1, len(axes))
+    finally:
+        for call in pending.values():
+            call.close()
     edited = from_model_rate(edited30, fps, len(angles), times)
     edited = angles + strength * (edited - angles)
     return edited, plans

@@ -68,6 +68,7 @@ def test_the_budget_falls_back_half_way_then_to_max_zoom():
 
 def test_a_lens_at_its_budget_or_a_path_needing_no_zoom_keeps_max_zoom():
     assert lens_budget(lambda b: b, _need_of(1.0), _at_budget, 1.10)[1] == pytest.approx(1.10)
+    assert lens_budget(lambda b: b, _need_of(0.95), _at_budget, 1.10)[1] == pytest.approx(1.10)  # 5 % unused
     assert lens_budget(lambda b: b, lambda b: np.ones(3), _at_budget, 1.10)[1] == pytest.approx(1.10)
 
 

@@ -117,6 +117,21 @@ def test_the_same_card_again_does_not_load_the_ingest_pipeline(card, tmp_path, v
     assert _rows(root) == before
 
 
+@pytest.mark.parametrize(
+    ("option", "needle"),
+    [(("--preset", "nope"), "unknown preset"), (("--joint-codec", "x"), "cannot code against"),
+     (("--aligner", "nope"), "unknown aligner")],
+)  # fmt: skip
+def test_bad_coding_options_are_refused_even_when_the_card_holds_nothing_new(card, option, needle):
+    """The light first step answers a known card without the ingest pipeline, but coding options
+    that were given are checked first: a sync job's typo is one error line, not 'nothing new'."""
+    root = card["root"]
+    before = _rows(root)
+    r = run_cli("dashcam", "ingest", root, card["card1"], "--gps", card["gps"], *option)
+    assert_one_error(r, needle)
+    assert _rows(root) == before
+
+
 @pytest.mark.slow
 def test_a_kill_mid_append_leaves_the_archive_as_it_was(card, tmp_path):
     """kill -9 once the append has written a bitstream, before its commit (held back by a write

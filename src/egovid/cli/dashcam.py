@@ -218,26 +218,29 @@ def ingest(
             validate.input_file(v, "video")
     log = validate.gps_input(gps) if gps is not None else None
     validate.outputs(videos, (json_out, validate.JSON, "--json"))
+    coding = {
+        "q": q,
+        "codec": codec,
+        "joint_codec": joint_codec,
+        "speed": speed,
+        "threads": threads,
+        "gop": gop,
+        "refresh": random_access,
+    }
+    # Coding options given are checked before anything else, even when the card holds nothing new
+    # (a typo in a sync job's options must not pass unseen until the day a new drive comes); with
+    # the defaults the light first step stays light (the ingest pipeline is not imported).
+    defaults = aligner == "orb" and baseline_align == "none"
+    given = preset is not None or any(v is not None for v in coding.values()) or not defaults
+    opts = _ingest_options(preset, coding, aligner, baseline_align, measure_savings, verify) if given else None
     single = len(videos) == 1 and not videos[0].is_dir()  # one file named: its problems are errors even when known
     if name is None and start_utc is None and not single and _nothing_new(ar, videos, verify_known, json_out):
         return
     from egovid.core.engine import EngineConfig, scheduler_address
     from egovid.dashcam import ingest as library
 
-    opts = library.IngestOptions.from_preset(
-        preset,
-        q=q,
-        codec=codec,
-        joint_codec=joint_codec,
-        speed=speed,
-        threads=threads,
-        gop=gop,
-        refresh=random_access,
-        aligner=aligner,
-        baseline_align=baseline_align,
-        measure_savings=measure_savings,
-        verify=verify,
-    ).check()
+    if opts is None:
+        opts = _ingest_options(preset, coding, aligner, baseline_align, measure_savings, verify)
     engine = EngineConfig(scheduler=scheduler_address(scheduler), workers=workers, retries=2)
     with staged_progress() as cb:
         result = library.ingest_videos(
@@ -263,6 +266,21 @@ def ingest(
         atomic_write_text(json_out, json.dumps(result.to_dict(), indent=1, default=str))
     _say_known(result.known, result.nothing_new)
     result.check()
+
+
+def _ingest_options(preset, coding: dict, aligner: str, baseline_align: str, measure_savings: bool, verify: bool):
+    """The ingest's coding options from ``--preset`` and the options that override it, checked
+    (:class:`EgovidError` for a bad value or combination)."""
+    from egovid.dashcam.ingest import IngestOptions
+
+    return IngestOptions.from_preset(
+        preset,
+        **coding,
+        aligner=aligner,
+        baseline_align=baseline_align,
+        measure_savings=measure_savings,
+        verify=verify,
+    ).check()
 
 
 def _say_known(known: int, nothing_new: bool) -> None:

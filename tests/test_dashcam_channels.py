@@ -22,7 +22,9 @@ import numpy as np
 import pytest
 
 from egovid.core.video import iter_frames
+from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec import segment as codec
+from egovid.dashcam.report import list_drives
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
 from conftest import assert_one_error, run_cli
@@ -120,6 +122,18 @@ def test_a_front_and_rear_pair_is_one_drive_with_two_channels(pair):
         assert rep[f"{day['name']}~rear"]["channel_of"] == day["name"]
     r = run_cli("dashcam", "list", root, env={"COLUMNS": "200"})  # the user sees two drives, not four
     assert r.returncode == 0 and days[1]["name"] in r.stdout and "~rear" not in r.stdout, r.stdout
+    assert r.stdout.count("front, rear") == 2, r.stdout  # the cameras column
+    # each row's bytes are those of both its cameras (the catalogue's segment rows, summed here)
+    ar = Archive(root)
+    try:
+        listed = {row.drive.name: row.bytes for row in list_drives(ar)}
+        cat = ar.catalogue
+        per_camera = {nm: sum(s.bytes for s in cat.segments(cat.drive(nm).id))
+                      for x in days for nm in (x["name"], f"{x['name']}~rear")}  # fmt: skip
+    finally:
+        ar.close()
+    assert listed == {x["name"]: per_camera[x["name"]] + per_camera[f"{x['name']}~rear"] for x in days}
+    assert all(v > 0 for v in per_camera.values())
     ingest = json.loads((pair["dir"] / "ingest1.json").read_text())  # one drive, its rear camera beside it
     assert [ingest["camera"], *(x["camera"] for x in ingest["channels"])] == ["front", "rear"]
     assert ingest["channels"][0]["channel_of"] == days[1]["name"]

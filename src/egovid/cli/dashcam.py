@@ -355,7 +355,8 @@ def _kib(n: float) -> str:
 
 @app.command("list")
 def list_cmd(archive: Path = typer.Argument(..., help="Archive folder.")) -> None:
-    """List the drives in the archive."""
+    """List the drives in the archive: one row per drive, its other cameras (a dashcam's rear,
+    interior) in the `cameras` column and their bytes in `stored`."""
     import datetime as dt
 
     from egovid.dashcam.report import list_drives
@@ -369,10 +370,12 @@ def list_cmd(archive: Path = typer.Argument(..., help="Archive folder.")) -> Non
             f"{r.drive.width}x{r.drive.height}",
             _kib(r.bytes),
             ", ".join(r.modes),
+            ", ".join(r.cameras),
         )
         for r in list_drives(_open(archive))
     ]
-    console.print(_table(str(archive), ("id", "drive", "start (UTC)", "frames", "size", "stored", "modes"), rows))
+    head = ("id", "drive", "start (UTC)", "frames", "size", "stored", "modes", "cameras")
+    console.print(_table(str(archive), head, rows))
 
 
 @app.command("show")

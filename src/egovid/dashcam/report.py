@@ -8,26 +8,37 @@ from dataclasses import dataclass
 
 from egovid.dashcam.archive import readings
 from egovid.dashcam.archive.catalogue import Catalogue, Drive, Segment, Sequence
-from egovid.dashcam.archive.fleetstore import channel_of_drives, fleet_version, live_drive, live_drives
+from egovid.dashcam.archive.fleetstore import (
+    channel_of_drives,
+    drive_channels,
+    fleet_version,
+    live_drive,
+    live_drives,
+)
 from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.codec import registry
 
 
 @dataclass
 class DriveRow:
-    """A drive as ``list`` shows it: the drive, the bytes its segments take, their modes (sorted)."""
+    """A drive as ``list`` shows it: the drive, the bytes its segments take with those of its
+    other cameras, their modes (sorted) and its cameras (its own first)."""
 
     drive: Drive
     bytes: int
     modes: list[str]
+    cameras: list[str]
 
 
 def list_drives(archive: Archive) -> list[DriveRow]:
-    """``egovid dashcam list``: every live drive (not the hidden references of forgotten ones)."""
+    """``egovid dashcam list``: every live drive (not the hidden references of forgotten ones, nor
+    the other cameras of a multi-camera drive, whose bytes count in their drive's row)."""
+    cat = archive.catalogue
     rows = []
-    for d in live_drives(archive.catalogue):
-        segs = archive.catalogue.segments(d.id)
-        rows.append(DriveRow(d, sum(s.bytes for s in segs), sorted({s.mode for s in segs})))
+    for d in live_drives(cat):
+        channels = drive_channels(cat, d.id)
+        segs = [s for i in channels.values() for s in cat.segments(i)]
+        rows.append(DriveRow(d, sum(s.bytes for s in segs), sorted({s.mode for s in segs}), list(channels)))
     return rows
 
 

@@ -99,7 +99,7 @@ def parse_gps_time(text: str) -> float | None:
 
 
 def fixes_from_exiftool(args_text: str, source: str = "") -> EmbeddedGps | None:
-    """Fixes from ExifTool's ``-ee -a -G3 -args`` text of a file (:meth:`ExifTool.records
+    """Fixes from ExifTool's ``-ee -a -G3:0 -args`` text of a file (:meth:`ExifTool.records
     <egovid.core.camera.exif.ExifTool.records>`); None if there is no GPS position in it.
 
     ExifTool puts each timed-metadata sample in a document ``DocN`` with its ``SampleTime`` and

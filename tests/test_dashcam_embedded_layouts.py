@@ -11,7 +11,7 @@ import pytest
 
 from egovid.core.camera.exif import read_records
 from egovid.dashcam.route.camera_gps import bearing_deg, exiftool_records, speed_ms
-from egovid.dashcam.route.embedded import read_embedded_gps
+from egovid.dashcam.route.embedded import parse_gps_time, read_embedded_gps
 from egovid.synth.dashcam_gps import (
     GPS_LEAP_S,
     ddmm,
@@ -80,6 +80,13 @@ def test_exiftool_reads_the_layouts_without_warnings(clips, layout):
     )
     groups = {g for _, tag, _, g in records if tag == "GPSLatitude"}
     assert groups == {"QuickTime"}
+
+
+def test_gps_time_with_its_fraction_after_the_zone():
+    """ExifTool 12.57's GoPro Karma GPSDateTime under QuickTimeUTC: ``…:59+00:00.54713``."""
+    want = parse_gps_time("2017:04:17 19:27:59.54713Z")
+    assert want is not None and parse_gps_time("2017:04:17 19:27:59+00:00.54713") == pytest.approx(want, abs=1e-6)
+    assert parse_gps_time("2017:04:17 21:27:59+02:00.5") == pytest.approx(want - 0.04713, abs=1e-6)
 
 
 def test_speed_units_follow_the_module_that_read_them():

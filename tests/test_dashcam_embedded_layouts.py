@@ -25,7 +25,9 @@ CASES = {
     "novatek": {},
     "novatek-doubles": {},
     "viofo-a119v3": {},
+    "nextbase": {},
     "blackvue": {"void": (2,)},
+    "garmin": {},
     "camm6": {"hz": 5.0, "void": (3,)},
     "camm5": {"hz": 5.0},
 }
@@ -49,7 +51,7 @@ def test_ddmm_round_trip():
 
 @pytest.mark.parametrize("layout", list(CASES))
 def test_each_layout_reads_the_fixes_it_was_built_from(clips, layout, monkeypatch):
-    monkeypatch.setenv("TZ", "America/New_York")  # ExifTool's own clock must not matter (camm5)
+    monkeypatch.setenv("TZ", "America/New_York")  # ExifTool's own clock must not matter (camm5, garmin)
     path, truth = clips[layout]
     e = read_embedded_gps(path)
     assert e is not None and e.reader.startswith("ExifTool")
@@ -72,11 +74,11 @@ def test_each_layout_reads_the_fixes_it_was_built_from(clips, layout, monkeypatc
 
 @pytest.mark.parametrize("layout", list(CASES))
 def test_exiftool_reads_the_layouts_without_warnings(clips, layout):
-    """ExifTool's -ee warnings: none, but camm5's (no time in the record: CreateDate + SampleTime)."""
+    """ExifTool's -ee warnings: none, but where the samples hold no time (CreateDate + SampleTime)."""
     records = exiftool_records(read_records(clips[layout][0]))
     warnings = {v for _, tag, v, _ in records if tag == "Warning"}
     assert warnings == (
-        {"[minor] Approximating GPSDateTime as CreateDate + SampleTime"} if layout == "camm5" else set()
+        {"[minor] Approximating GPSDateTime as CreateDate + SampleTime"} if layout in ("camm5", "garmin") else set()
     )
     groups = {g for _, tag, _, g in records if tag == "GPSLatitude"}
     assert groups == {"QuickTime"}

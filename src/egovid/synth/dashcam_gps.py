@@ -14,6 +14,11 @@ camera's GPS added with :mod:`egovid.synth.mp4box`, byte for byte as ExifTool 12
   bytes 112 and 128 and altitude at 160, which ExifTool prefers when they agree with the floats;
 * ``viofo-a119v3`` (type 1C): the time's six uint32 at byte 16 (year - 2000), ``A`` at byte 40,
   float32 DDMM.MMMM latitude, longitude, knots and track from byte 44;
+* ``nextbase`` (Nextbase 512GW; type 1B): the camera's date and time as 14 ASCII digits at byte
+  52 and the fix as ``$GPRMC``/``$GPGGA`` text from byte 80 of the block;
+* ``garmin`` (Garmin dashcams): a text track (handler ``text``) of ``PNDM`` samples, one per
+  second: speed in mph (uint16) and latitude/longitude in semicircles (int32, big-endian), no
+  time (ExifTool dates them as the file's CreateDate + the sample's time);
 * ``blackvue`` (Pittasoft): a top-level ``free`` box holding ``sttm`` (the recording's start, ms
   since 1970, big-endian int64) and ``gps `` (NMEA text, one ``[ms]$GPRMC`` and ``[ms]$GPGGA``
   line pair per second, the bracket the fix's time on the same clock as ``sttm``);
@@ -45,12 +50,14 @@ from egovid.synth.gopro import _path
 from egovid.synth.mp4box import add_boxes, box, set_handler
 
 KNOT = 1852.0 / 3600.0  # m/s
+MPH = 0.44704  # m/s
 #: Seconds from 1970-01-01 to the GPS epoch (1980-01-06).
 GPS_EPOCH_UNIX = 315964800.0
 #: GPS time minus UTC since 2017 (leap seconds).
 GPS_LEAP_S = 18.0
 
-LAYOUTS = ("novatek", "novatek-doubles", "viofo-a119v3", "blackvue", "camm6", "camm5")
+FREEGPS = ("novatek", "novatek-doubles", "viofo-a119v3", "nextbase")
+LAYOUTS = (*FREEGPS, "blackvue", "garmin", "camm6", "camm5")
 
 
 @dataclass
@@ -90,8 +97,8 @@ def _f32(x) -> np.ndarray:
 
 # -- Novatek freeGPS -------------------------------------------------------------------------
 def novatek_block(layout: str, utc: float, lat: float, lon: float, knots: float, track: float, alt: float) -> bytes:
-    """One ``freeGPS `` block (a ``free`` box, 256 bytes) of ``layout`` (``novatek``,
-    ``novatek-doubles``, ``viofo-a119v3``); ``utc`` whole seconds."""
+    """One ``freeGPS `` block (a ``free`` box, 256 bytes) of ``layout`` (one of :data:`FREEGPS`);
+    ``utc`` whole seconds."""
     t = dt.datetime.fromtimestamp(utc, dt.UTC)
     when = (t.hour, t.minute, t.second, t.year - 2000, t.month, t.day)
     refs = b"A" + (b"N" if lat >= 0 else b"S") + (b"E" if lon >= 0 else b"W") + b"\0"
@@ -108,6 +115,12 @@ def novatek_block(layout: str, utc: float, lat: float, lon: float, knots: float,
             body[0x70 - 8 : 0x78 - 8] = struct.pack("<d", la)
             body[0x80 - 8 : 0x88 - 8] = struct.pack("<d", lo)
             body[0xA0 - 8 : 0xA8 - 8] = struct.pack("<d", alt)
+    elif layout == "nextbase":
+        at = 52 - 8
+        body[at : at + 14] = t.strftime("%Y%m%d%H%M%S").encode("ascii")  # the camera's clock
+        rmc, gga = nmea_fix(utc, lat, lon, knots, track, alt)
+        text = f"{rmc}\r\n{gga}\r\n".encode("ascii")
+        body[80 - 8 : 80 - 8 + len(text)] = text
     elif layout == "viofo-a119v3":
         at = 16 - 8
         body[at : at + 24] = struct.pack("<6I", *when)
@@ -138,6 +151,23 @@ def _nmea_pos(deg: float, width: int, pos: str, neg: str) -> tuple[str, str]:
     return f"{m:0{width + 6}.5f}", pos if deg >= 0 else neg
 
 
+def nmea_fix(utc: float, lat: float, lon: float, knots: float, track: float, alt: float) -> tuple[str, str]:
+    """The ``$GPRMC`` and ``$GPGGA`` sentences of one fix (minutes to 5 decimals, time to 10 ms)."""
+    d = dt.datetime.fromtimestamp(float(utc), dt.UTC)
+    hms = d.strftime("%H%M%S") + f".{round(d.microsecond / 1e4):02d}"
+    la, ns = _nmea_pos(lat, 4, "N", "S")
+    lo, ew = _nmea_pos(lon, 5, "E", "W")
+    rmc = nmea(f"GPRMC,{hms},A,{la},{ns},{lo},{ew},{knots:.3f},{track:.2f},{d:%d%m%y},,,A")
+    return rmc, nmea(f"GPGGA,{hms},{la},{ns},{lo},{ew},1,09,0.90,{alt:.1f},M,47.3,M,,")
+
+
+def nmea_truth(lat, lon, knots, track) -> tuple[np.ndarray, ...]:
+    """What :func:`nmea_fix` stores: degrees from 5-decimal minutes, m/s from 3-decimal knots,
+    course to 2 decimals."""
+    s_lat, s_lon = from_ddmm(np.round(ddmm(lat), 5)), from_ddmm(np.round(ddmm(lon), 5))
+    return np.sign(lat) * s_lat, np.sign(lon) * s_lon, np.round(knots, 3) * KNOT, np.round(track, 2)
+
+
 def blackvue_gps_text(utc, lat, lon, knots, track, alt, start_ms: int, void: tuple[int, ...] = ()) -> str:
     """The NMEA text of BlackVue's ``gps `` box: per fix ``[ms]$GPRMC`` and ``[ms]$GPGGA``;
     fixes in ``void`` written with status V and no position (before a lock)."""
@@ -150,13 +180,17 @@ def blackvue_gps_text(utc, lat, lon, knots, track, alt, start_ms: int, void: tup
             lines.append(f"[{ms}]" + nmea(f"GPRMC,{hms},V,,,,,,,{d:%d%m%y},,,N"))
             lines.append(f"[{ms}]" + nmea(f"GPGGA,{hms},,,,,0,00,99.99,,,,,,"))
             continue
-        la, ns = _nmea_pos(lat[k], 4, "N", "S")
-        lo, ew = _nmea_pos(lon[k], 5, "E", "W")
-        lines.append(
-            f"[{ms}]" + nmea(f"GPRMC,{hms},A,{la},{ns},{lo},{ew},{knots[k]:.3f},{track[k]:.2f},{d:%d%m%y},,,A")
-        )
-        lines.append(f"[{ms}]" + nmea(f"GPGGA,{hms},{la},{ns},{lo},{ew},1,09,0.90,{alt[k]:.1f},M,47.3,M,,"))
+        rmc, gga = nmea_fix(float(u), lat[k], lon[k], knots[k], track[k], alt[k])
+        lines += [f"[{ms}]{rmc}", f"[{ms}]{gga}"]
     return "\r\n".join(lines) + "\r\n"
+
+
+# -- Garmin -----------------------------------------------------------------------------------
+def garmin_pndm(mph: int, lat_semi: int, lon_semi: int) -> bytes:
+    """A Garmin ``PNDM`` text-track sample (big-endian): 4-byte size, ``PNDM``, 4 unknown bytes,
+    speed (uint16, mph), 2 bytes, latitude and longitude (int32 semicircles, 2^31 = 180 deg)."""
+    body = b"PNDM" + b"\0" * 4 + struct.pack(">H2xii", mph, lat_semi, lon_semi) + b"\0" * 8
+    return struct.pack(">I", 4 + len(body)) + body
 
 
 # -- CAMM ----------------------------------------------------------------------------------------
@@ -244,7 +278,7 @@ def write_dashcam_gps_clip(
     keep = np.array([k not in void for k in range(n)])
     nan = np.full(n, np.nan)
 
-    if layout in ("novatek", "novatek-doubles", "viofo-a119v3"):
+    if layout in FREEGPS:
         _video(out, seconds, start, size, fps)
         blocks = [
             novatek_block(layout, float(u), la, lo, kn, tr, al)
@@ -257,27 +291,27 @@ def write_dashcam_gps_clip(
         data = bytearray(out.read_bytes())
         data[at:at + len(moov_child)] = gps_data_list(list(zip(offsets, sizes, strict=True)))  # fmt: skip
         out.write_bytes(bytes(data))
-        if layout == "novatek-doubles":
-            s_lat, s_lon = from_ddmm(ddmm(lat)), from_ddmm(ddmm(lon))
+        if layout == "nextbase":
+            truth = (utc, nan, *nmea_truth(lat, lon, knots, heading))
         else:
-            s_lat, s_lon = from_ddmm(_f32(ddmm(lat))), from_ddmm(_f32(ddmm(lon)))
-        truth = (utc, nan, np.sign(lat) * s_lat, np.sign(lon) * s_lon, _f32(knots) * KNOT, _f32(heading))
+            s = (lambda v: v) if layout == "novatek-doubles" else _f32
+            s_lat, s_lon = from_ddmm(s(ddmm(lat))), from_ddmm(s(ddmm(lon)))
+            truth = (utc, nan, np.sign(lat) * s_lat, np.sign(lon) * s_lon, _f32(knots) * KNOT, _f32(heading))
     elif layout == "blackvue":
         _video(out, seconds, start, size, fps)
         start_ms = round(start * 1000)
         text = blackvue_gps_text(utc, lat, lon, knots, heading, alt, start_ms, void).encode("ascii")
         free = box("free", box("sttm", struct.pack(">Q", start_ms)) + box("gps ", text + b"\0" * 64))
         add_boxes(out, b"", [free])  # (real files have it before mdat: ExifTool reads it anywhere)
-        s_lat = np.round(ddmm(lat), 5)
-        s_lon = np.round(ddmm(lon), 5)
-        truth = (
-            utc,
-            vt,
-            np.sign(lat) * from_ddmm(s_lat),
-            np.sign(lon) * from_ddmm(s_lon),
-            np.round(knots, 3) * KNOT,
-            np.round(heading, 2),
-        )
+        truth = (utc, vt, *nmea_truth(lat, lon, knots, heading))
+    elif layout == "garmin":
+        mph = np.round(speed / MPH * np.ones(n))
+        semi = np.round(np.column_stack([lat, lon]) * 2**31 / 180.0).astype(np.int64)
+        samples = [(round(vt[k] * 1000), garmin_pndm(int(mph[k]), *semi[k])) for k in range(n)]
+        _video(out, seconds, start, size, fps, samples, "text")
+        set_handler(out, "meta", "text")
+        s_lat, s_lon = semi[:, 0] * 180.0 / 2**31, semi[:, 1] * 180.0 / 2**31
+        truth = (utc, vt, s_lat, s_lon, mph * MPH, nan)
     else:
         samples = []
         for k in range(n):

@@ -5,7 +5,7 @@ camera's GPS added with :mod:`egovid.synth.mp4box`, byte for byte as ExifTool 12
 (``Image/ExifTool/QuickTimeStream.pl`` and ``QuickTime.pm``) reads it:
 
 * ``novatek`` (Viofo A119S and most Novatek dashcams; ExifTool's ``ProcessFreeGPS`` type 1J): one
-  ``freeGPS `` block per second, here top-level ``free`` boxes after ``moov``, listed as
+  ``freeGPS `` block per second, at the end of ``mdat`` (cameras interleave them with the video), listed as
   (offset, size) pairs in a ``gps `` box inside ``moov`` (ExifTool's ``GPSDataList``). A block:
   big-endian size, ``freeGPS ``, then at byte 48 six little-endian uint32 (hour, minute,
   second, year - 2000, month, day, UTC), status ``A``, ``N``/``S``, ``E``/``W``, and float32
@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from egovid.synth.gopro import _path
-from egovid.synth.mp4box import add_boxes, box, set_handler
+from egovid.synth.mp4box import add_boxes, add_to_mdat, box, set_handler
 
 KNOT = 1852.0 / 3600.0  # m/s
 MPH = 0.44704  # m/s
@@ -285,12 +285,7 @@ def write_dashcam_gps_clip(
             for u, la, lo, kn, tr, al in zip(utc, lat, lon, knots, heading, alt, strict=True)
         ]
         sizes = [len(b) for b in blocks]
-        # the gps box's size is known before the offsets: it goes into moov, the blocks after it
-        moov_child = gps_data_list([(0, s) for s in sizes])
-        at, offsets = add_boxes(out, moov_child, blocks)
-        data = bytearray(out.read_bytes())
-        data[at:at + len(moov_child)] = gps_data_list(list(zip(offsets, sizes, strict=True)))  # fmt: skip
-        out.write_bytes(bytes(data))
+        add_to_mdat(out, blocks, lambda offsets: gps_data_list(list(zip(offsets, sizes, strict=True))))
         if layout == "nextbase":
             truth = (utc, nan, *nmea_truth(lat, lon, knots, heading))
         else:

@@ -65,6 +65,30 @@ def add_boxes(
     return at, offsets
 
 
+def add_to_mdat(path: str | os.PathLike, blocks: list[bytes], moov_child) -> list[int]:
+    """Append ``blocks`` to the end of the file's ``mdat`` (its size grown; the samples before
+    them keep their offsets, ``moov`` after them holds no offset of itself) and put
+    ``moov_child(offsets)`` into ``moov`` as :func:`add_boxes` does, ``offsets`` being the blocks'
+    absolute offsets (bytes), which are returned. Cameras interleave such blocks in ``mdat``:
+    ExifTool refuses to rewrite a file whose ``gps `` box points outside it."""
+    p = Path(path)
+    data = p.read_bytes()
+    boxes = {k: (o, s) for k, o, s in top_level(data)}
+    (m_pos, m_size), (v_pos, v_size) = boxes["mdat"], boxes["moov"]
+    if v_pos < m_pos or v_pos + v_size != len(data):
+        raise ValueError(f"{p.name}: moov is not the last box, after mdat")
+    end = m_pos + m_size
+    offsets = [end + sum(len(b) for b in blocks[:k]) for k in range(len(blocks))]
+    grown = bytearray(data[:end])
+    if struct.unpack(">I", grown[m_pos : m_pos + 4])[0] == 1:
+        grown[m_pos + 8 : m_pos + 16] = struct.pack(">Q", m_size + sum(map(len, blocks)))
+    else:
+        grown[m_pos : m_pos + 4] = struct.pack(">I", m_size + sum(map(len, blocks)))
+    p.write_bytes(bytes(grown) + b"".join(blocks) + data[end:])
+    add_boxes(p, moov_child(offsets))
+    return offsets
+
+
 def set_handler(path: str | os.PathLike, old: str, new: str) -> int:
     """Rename the handler type ``old`` to ``new`` in every ``hdlr`` box of the file's tracks
     (both four characters; sizes unchanged); returns how many were renamed."""

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from egovid.core.camera.exif import read_records
+from egovid.core.errors import EgovidError
 from egovid.dashcam.route.camera_gps import bearing_deg, exiftool_records, speed_ms
 from egovid.dashcam.route.embedded import parse_gps_time, read_embedded_gps
 from egovid.synth.dashcam_gps import (
@@ -114,6 +115,18 @@ def test_camm6_gps_epoch_time(tmp_path):
     assert e is not None
     assert np.median(e.track.t - truth.utc) == pytest.approx(GPS_LEAP_S)  # what it reads today
     np.testing.assert_allclose(e.track.t, truth.utc, rtol=0, atol=1e-3)
+
+
+def test_a_viofo_clock_in_local_time_is_refused_then_placed_with_tz_offset(tmp_path):
+    """freeGPS fixes carry no video time: the camera clock places the video, checked against them."""
+    from egovid.dashcam.ingest.sources import ClockOptions, examine
+
+    path = tmp_path / "2024_0517_113012_001.MP4"
+    truth = write_dashcam_gps_clip(path, "novatek", clock_h=2.0)
+    with pytest.raises(EgovidError, match="looks like local time UTC\\+2: pass --tz-offset 2"):
+        examine(path, None, ClockOptions())
+    src = examine(path, None, ClockOptions(tz_offset_h=2.0))
+    assert src.clock.start_utc == truth.start_utc and src.gps_source.startswith("embedded: ExifTool")
 
 
 def test_cli_ingest_reads_a_viofo_files_own_gps(clips, tmp_path):

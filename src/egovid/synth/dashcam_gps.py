@@ -255,6 +255,7 @@ def write_dashcam_gps_clip(
     speed: float = 12.0,
     void: tuple[int, ...] = (),
     epoch: str = "unix",
+    clock_h: float = 0.0,
     hz: float = 1.0,
     size: tuple[int, int] = (160, 90),
     fps: float = 30.0,
@@ -264,9 +265,13 @@ def write_dashcam_gps_clip(
     along a curve from ``origin`` (degrees) at ``speed`` m/s, starting at ``start_utc`` (whole
     seconds; default 2024-05-17 09:30:12 UTC). ``void``: fix indices written without a fix
     (BlackVue status V, CAMM fix type 0), left out of the truth. ``epoch`` (camm6): ``"unix"``
-    or ``"gps"``. Returns the stored fixes."""
+    or ``"gps"``. ``clock_h``: the camera's clock minus UTC in hours, written into the container's
+    creation time (a dashcam set to local time; not for ``garmin``/``camm5``, whose fixes ExifTool
+    dates by that clock). Returns the stored fixes."""
     if layout not in LAYOUTS:
         raise ValueError(f"unknown layout {layout!r}; one of {', '.join(LAYOUTS)}")
+    if clock_h and layout in ("garmin", "camm5"):
+        raise ValueError(f"{layout}: its fixes are dated by the camera clock; clock_h must be 0")
     out = Path(path)
     start = start_utc if start_utc is not None else dt.datetime(2024, 5, 17, 9, 30, 12, tzinfo=dt.UTC).timestamp()
     n = round(seconds * hz) + 1  # a fix at either end of the clip, as the cameras write
@@ -279,7 +284,7 @@ def write_dashcam_gps_clip(
     nan = np.full(n, np.nan)
 
     if layout in FREEGPS:
-        _video(out, seconds, start, size, fps)
+        _video(out, seconds, start + clock_h * 3600.0, size, fps)
         blocks = [
             novatek_block(layout, float(u), la, lo, kn, tr, al)
             for u, la, lo, kn, tr, al in zip(utc, lat, lon, knots, heading, alt, strict=True)
@@ -293,7 +298,7 @@ def write_dashcam_gps_clip(
             s_lat, s_lon = from_ddmm(s(ddmm(lat))), from_ddmm(s(ddmm(lon)))
             truth = (utc, nan, np.sign(lat) * s_lat, np.sign(lon) * s_lon, _f32(knots) * KNOT, _f32(heading))
     elif layout == "blackvue":
-        _video(out, seconds, start, size, fps)
+        _video(out, seconds, start + clock_h * 3600.0, size, fps)
         start_ms = round(start * 1000)
         text = blackvue_gps_text(utc, lat, lon, knots, heading, alt, start_ms, void).encode("ascii")
         free = box("free", box("sttm", struct.pack(">Q", start_ms)) + box("gps ", text + b"\0" * 64))
@@ -303,7 +308,7 @@ def write_dashcam_gps_clip(
         mph = np.round(speed / MPH * np.ones(n))
         semi = np.round(np.column_stack([lat, lon]) * 2**31 / 180.0).astype(np.int64)
         samples = [(round(vt[k] * 1000), garmin_pndm(int(mph[k]), *semi[k])) for k in range(n)]
-        _video(out, seconds, start, size, fps, samples, "text")
+        _video(out, seconds, start + clock_h * 3600.0, size, fps, samples, "text")
         set_handler(out, "meta", "text")
         s_lat, s_lon = semi[:, 0] * 180.0 / 2**31, semi[:, 1] * 180.0 / 2**31
         truth = (utc, vt, s_lat, s_lon, mph * MPH, nan)
@@ -325,7 +330,7 @@ def write_dashcam_gps_clip(
             else:
                 rec = camm5(float(lat[k]), float(lon[k]), float(alt[k]))
             samples.append((round(vt[k] * 1000), rec))
-        _video(out, seconds, start, size, fps, samples, "camm")
+        _video(out, seconds, start + clock_h * 3600.0, size, fps, samples, "camm")
         set_handler(out, "meta", "camm")  # PyAV writes "meta"; the specification says "camm"
         if layout == "camm6":
             h = np.radians(heading)

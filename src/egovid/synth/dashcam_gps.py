@@ -219,6 +219,9 @@ def _video(path: Path, seconds: float, start_utc: float, size, fps: float, sampl
         if samples:
             d = c.add_data_stream(codec_name="bin_data")
             d.codec_tag = tag
+            d.metadata["handler_name"] = {"camm": "CameraMetadataMotionHandler"}.get(
+                tag, "DataHandler"
+            )  # not FFmpeg's "GoPro MET"
             d.time_base = fractions.Fraction(1, 1000)
         pending = list(samples or [])
         for i in range(round(seconds * fps)):

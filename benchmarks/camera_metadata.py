@@ -40,6 +40,7 @@ GENERATIONS = ("hero5", "hero6", "hero7", "hero8", "hero9", "hero10", "hero11", 
 def gps_figures() -> dict:
     import exiftool
 
+    from egovid.core.camera.exif import RECORD_ARGS
     from egovid.dashcam.route.camera_gps import exiftool_records, exiftool_rows
     from egovid.dashcam.route.embedded import parse_gps_time
     from egovid.synth.gopro import write_gopro_clip
@@ -56,7 +57,7 @@ def gps_figures() -> dict:
         for f in files:
             gps = read_gpmf_gps(f)
             check = compare(gps, read_telemetry_parser_gps(f)) if gps is not None else None
-            ordered = exiftool_rows(exiftool_records(et.execute("-ee", "-a", "-G3", "-args", str(f))), parse_gps_time)
+            ordered = exiftool_rows(exiftool_records(et.execute(*RECORD_ARGS, str(f))), parse_gps_time)
             out[f.name] = {
                 "gpmf_fixes": len(gps) if gps is not None else 0,
                 "gpmf_layout": gps.layout if gps is not None else None,

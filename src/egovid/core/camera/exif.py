@@ -25,6 +25,15 @@ from typing import Any
 
 from egovid.core.errors import EgovidError
 
+#: ExifTool's arguments for :meth:`ExifTool.records`: every embedded tag (``-ee -a``), in file
+#: order (``-args``), each with its document (family 3) and the module that read it (family 0:
+#: ``GoPro``, ``QuickTime``, ...; units differ between them: GoPro's GPSSpeed is m/s, the
+#: QuickTime streams' km/h). ``QuickTimeUTC``: the container's CreateDate is UTC, as the format
+#: says, not the local time of the machine that runs ExifTool; ExifTool dates fixes without a time
+#: of their own (CAMM type 5, Garmin, 70mai) as CreateDate + SampleTime, which must not move
+#: with the time zone egovid runs in.
+RECORD_ARGS = ("-ee", "-a", "-G3:0", "-args", "-api", "QuickTimeUTC=1")
+
 _INSTALL_FIX = "install ExifTool (Debian/Ubuntu: apt-get install libimage-exiftool-perl; `make install` does it)"
 
 
@@ -105,8 +114,9 @@ class ExifTool:
 
     def records(self, path: str | os.PathLike) -> str:
         """The timed streams of ``path`` as ExifTool's ``-args`` text, every tag in file order
-        (``-ee -a -G3``: ``-Doc2:GPSLatitude=…`` lines), the form that keeps one sample's fields
-        together where the copy numbers of :meth:`tags` would give them different numbers.
+        (``-ee -a -G3:0``: ``-Doc2:QuickTime:GPSLatitude=…`` lines), the form that keeps one sample's fields
+        together where the copy numbers of :meth:`tags` would give them different numbers, and
+        the family-0 group (``-Doc2:QuickTime:GPSSpeed=…``, :data:`RECORD_ARGS`).
         Raises :class:`EgovidError` like :meth:`tags`."""
         import exiftool
 
@@ -115,7 +125,7 @@ class ExifTool:
             raise EgovidError(f"file not found: {p}", "check the path")
         self.start()
         try:
-            return self._helper.execute("-ee", "-a", "-G3", "-args", "-api", "LargeFileSupport=1", str(p))
+            return self._helper.execute(*RECORD_ARGS, "-api", "LargeFileSupport=1", str(p))
         except exiftool.exceptions.ExifToolException as exc:
             raise EgovidError(f"ExifTool cannot read {p} ({_reason(exc)})", "check that it is a media file") from None
         except (OSError, ValueError) as exc:

@@ -12,7 +12,7 @@ reason:
 * **Tesla SEI** (:mod:`egovid.core.camera.tesla`): one fix per frame with a position; the message
   has no time of day, so the fixes' UTC is the clip's start (from the caller's clock) plus the
   frame time;
-* **ExifTool in file order** (``-ee -a -G3 -args``, every brand ExifTool covers): a fix is the run of
+* **ExifTool in file order** (``-ee -a -G3:0 -args``, every brand ExifTool covers): a fix is the run of
   ``GPS*`` tags of one document up to the next repeat of a tag it already holds, so fields that
   ExifTool numbers as different copies (``-G4``) are still paired by where they stand. Tags that
   only the first fix of a document holds while later fixes do not (GoPro's one ``GPSDateTime``,
@@ -36,7 +36,11 @@ from egovid.dashcam.route.tracks import as_float
 
 #: Fixes whose dilution of precision is above this are dropped as imprecise.
 MAX_DOP = 5.0
-_ARG = re.compile(r"^-(?:(Doc\d+)|[A-Za-z0-9]+)(?::[A-Za-z0-9]+)*:([A-Za-z0-9]+)=(.*)$")
+_ARG = re.compile(r"^-(?:(Doc\d+)|[A-Za-z0-9]+)(?::([A-Za-z0-9]+))*:([A-Za-z0-9]+)=(.*)$")
+#: GPSSpeed's unit per ExifTool family-0 group, in m/s per unit: ExifTool's QuickTime streams give
+#: km/h unless a GPSSpeedRef says otherwise (its tag notes), its GoPro module m/s.
+SPEED_UNIT_MS = {"GoPro": 1.0}
+KMH = 1 / 3.6
 
 
 @dataclass
@@ -106,34 +110,40 @@ def tesla_rows(tel: TeslaTelemetry, start_utc: float) -> GpsRows:
 
 
 # -- ExifTool, in file order -------------------------------------------------------------------
-def exiftool_records(text: str) -> list[tuple[int, str, str]]:
-    """ExifTool's ``-args`` output (``-a -G3``) as ``(document, tag, value)`` in file order
-    (document 0: the file's own tags)."""
+def exiftool_records(text: str) -> list[tuple[int, str, str, str]]:
+    """ExifTool's ``-args`` output (``-a -G3:0``, :data:`egovid.core.camera.exif.RECORD_ARGS`) as
+    ``(document, tag, value, group)`` in file order (document 0: the file's own tags; group: the
+    family-0 group, ``GoPro``, ``QuickTime``…, "" where the text has none)."""
     out = []
     for line in text.splitlines():
         m = _ARG.match(line)
         if m:
             doc = int(m.group(1)[3:]) if m.group(1) else 0
-            out.append((doc, m.group(2), m.group(3)))
+            out.append((doc, m.group(3), m.group(4), m.group(2) or ""))
     return out
 
 
 @dataclass
 class ExifDocument:
     """One timed-metadata document: ``meta`` (SampleTime, SampleDuration as text), ``fixes``
-    (tag dicts in file order), ``shared`` (tags of the whole document, see the module docstring)."""
+    (tag dicts in file order), ``shared`` (tags of the whole document, see the module docstring),
+    ``group`` (ExifTool's family-0 group of its GPS tags: which module read them)."""
 
     doc: int
     meta: dict[str, str]
     fixes: list[dict[str, str]]
     shared: dict[str, str]
+    group: str = ""
 
 
-def exiftool_documents(records: list[tuple[int, str, str]]) -> list[ExifDocument]:
+def exiftool_documents(records: list[tuple[int, str, str, str]]) -> list[ExifDocument]:
     """The documents of ``records`` with their fixes paired by position."""
     by_doc: dict[int, list[tuple[str, str]]] = {}
-    for doc, tag, value in records:
+    groups: dict[int, str] = {}
+    for doc, tag, value, group in records:
         by_doc.setdefault(doc, []).append((tag, value))
+        if tag.startswith("GPS"):
+            groups.setdefault(doc, group)
     out = []
     for doc in sorted(by_doc):
         if doc == 0:
@@ -156,21 +166,38 @@ def exiftool_documents(records: list[tuple[int, str, str]]) -> list[ExifDocument
         if len(fixes) > 1:
             later = set().union(*(f.keys() for f in fixes[1:]))
             shared = {k: v for k, v in fixes[0].items() if k not in later}
-        out.append(ExifDocument(doc, meta, fixes, shared))
+        out.append(ExifDocument(doc, meta, fixes, shared, groups.get(doc, "")))
     return out
 
 
-def _speed_ms(speed, ref) -> float:
-    """ExifTool's GPSSpeed in m/s given GPSSpeedRef (K km/h, M mph, N knots; GoPro writes m/s and
-    no ref); NaN if the unit is unknown."""
-    v = as_float(speed)
+def speed_ms(tags: dict, group: str) -> float:
+    """A fix's speed in m/s from ExifTool's tags: GPSSpeed in the unit of GPSSpeedRef (K km/h, M
+    mph, N knots), else of the reading module (``group``, :data:`SPEED_UNIT_MS`: GoPro m/s, the
+    QuickTime streams km/h); else the horizontal velocity (CAMM's GPSVelocityEast/North, m/s);
+    NaN if none or the unit is unknown."""
+    if "GPSSpeed" not in tags:
+        ve, vn = as_float(tags.get("GPSVelocityEast")), as_float(tags.get("GPSVelocityNorth"))
+        return math.hypot(ve, vn) if math.isfinite(ve) and math.isfinite(vn) else math.nan
+    v, ref = as_float(tags["GPSSpeed"]), tags.get("GPSSpeedRef")
     if ref is None:
-        return v
-    factor = {"K": 1 / 3.6, "M": 0.44704, "N": 0.514444}.get(str(ref).strip().upper()[:1])
+        factor = SPEED_UNIT_MS.get(group, KMH)
+    else:
+        factor = {"K": KMH, "M": 0.44704, "N": 1852 / 3600}.get(str(ref).strip().upper()[:1])
     return v * factor if factor is not None and math.isfinite(v) else math.nan
 
 
-def exiftool_rows(records: list[tuple[int, str, str]], parse_time, name: str = "") -> GpsRows:
+def bearing_deg(tags: dict) -> float:
+    """A fix's course over ground in degrees from north: GPSTrack where true (GPSTrackRef T or
+    none), else the direction of CAMM's horizontal velocity; NaN if neither."""
+    if "GPSTrack" in tags:
+        return as_float(tags["GPSTrack"]) if str(tags.get("GPSTrackRef", "T")).upper()[:1] == "T" else math.nan
+    ve, vn = as_float(tags.get("GPSVelocityEast")), as_float(tags.get("GPSVelocityNorth"))
+    if not (math.isfinite(ve) and math.isfinite(vn)) or math.hypot(ve, vn) < 0.5:
+        return math.nan  # no direction when standing still
+    return math.degrees(math.atan2(ve, vn)) % 360.0
+
+
+def exiftool_rows(records: list[tuple[int, str, str, str]], parse_time, name: str = "") -> GpsRows:
     """Rows of ExifTool's fixes; ``parse_time(text) -> UTC seconds | None`` reads ``GPSDateTime``
     (and ``GPSDateStamp`` + ``GPSTimeStamp``)."""
     dropped: dict[str, int] = {}
@@ -205,8 +232,7 @@ def exiftool_rows(records: list[tuple[int, str, str]], parse_time, name: str = "
                 _count(dropped, "no time")
                 continue
             vt = t0 + share[k] if math.isfinite(t0) else math.nan
-            bearing = as_float(g.get("GPSTrack")) if str(g.get("GPSTrackRef", "T")).upper()[:1] == "T" else math.nan
-            rows.append((utc, vt, lat, lon, _speed_ms(g.get("GPSSpeed"), g.get("GPSSpeedRef")), bearing))
+            rows.append((utc, vt, lat, lon, speed_ms(g, d.group), bearing_deg(g)))
     return GpsRows(rows, f"ExifTool ({name})" if name else "ExifTool", dropped)
 
 

@@ -46,6 +46,9 @@ from egovid.dashcam.route.camera_gps import GpsRows, exiftool_records, exiftool_
 from egovid.dashcam.route.tracks import GpsTrack, finish_track, nmea_fixes
 
 _NMEA_LINE = re.compile(r"\$[A-Z]{2}[A-Z]{3},[^\r\n$]*")
+#: ExifTool 12.57 with ``-api QuickTimeUTC`` writes the fraction of a GoPro Karma GPSDateTime after
+#: the zone it adds (``19:27:59+00:00.54713``): moved back in front of the zone before parsing.
+_FRACTION_AFTER_ZONE = re.compile(r"(:\d\d)(Z|[+\-]\d\d:?\d\d)(\.\d+)$")
 _GPS_TIME = re.compile(r"^(\d{4})[:\-](\d\d)[:\-](\d\d)[ T](\d\d):(\d\d):(\d\d(?:\.\d+)?)\s*(Z|[+\-]\d\d:?\d\d)?$")
 
 
@@ -79,9 +82,10 @@ class EmbeddedGps:
 
 
 def parse_gps_time(text: str) -> float | None:
-    """``YYYY:MM:DD HH:MM:SS[.fff][Z|±HH:MM]`` (ExifTool's GPSDateTime) → UTC seconds since the
-    epoch; a time without zone is UTC (GPS time is); None if unreadable or implausible."""
-    m = _GPS_TIME.match(str(text).strip())
+    """``YYYY:MM:DD HH:MM:SS[.fff][Z|±HH:MM]`` (ExifTool's GPSDateTime; also with the fraction
+    after the zone, :data:`_FRACTION_AFTER_ZONE`) → UTC seconds since the epoch; a time without
+    zone is UTC (GPS time is); None if unreadable or implausible."""
+    m = _GPS_TIME.match(_FRACTION_AFTER_ZONE.sub(r"\1\3\2", str(text).strip()))
     if not m:
         return None
     y, mo, d, h, mi = (int(m.group(i)) for i in range(1, 6))
@@ -99,7 +103,7 @@ def parse_gps_time(text: str) -> float | None:
 
 
 def fixes_from_exiftool(args_text: str, source: str = "") -> EmbeddedGps | None:
-    """Fixes from ExifTool's ``-ee -a -G3 -args`` text of a file (:meth:`ExifTool.records
+    """Fixes from ExifTool's ``-ee -a -G3:0 -args`` text of a file (:meth:`ExifTool.records
     <egovid.core.camera.exif.ExifTool.records>`); None if there is no GPS position in it.
 
     ExifTool puts each timed-metadata sample in a document ``DocN`` with its ``SampleTime`` and

@@ -23,7 +23,8 @@ CODECS = ("av1", "vp9")  # what standalone pieces can be stored in
 #: ``joint_codec``: the codec of the joint candidate (``vp9``: libvpx at ``speed``; ``aom``: AV1 by
 #: libaom at cpu-used ``aom_speed``, its realtime mode where ``realtime``, else good quality, at
 #: quantiser ``--q`` + ``aom_dq``, in temporal layers of period ``aom_gop`` (1: flat), every
-#: reference refresh kept where ``aom_keep_refresh``).
+#: reference refresh kept where ``aom_keep_refresh``, its cost tables fixed within a frame where
+#: ``aom_fixed_costs``, in ``2^aom_tile_columns`` tile columns).
 PRESETS: dict[str, dict] = {
     # SVT-AV1 preset 10 for standalone pieces; the joint candidate in AV1 by libaom's realtime
     # mode at cpu-used 7, flat (each frame from the ones before it and the older drive), every
@@ -53,6 +54,8 @@ PRESETS: dict[str, dict] = {
         "aom_dq": 10,
         "aom_gop": 1,
         "aom_keep_refresh": True,
+        "aom_fixed_costs": True,
+        "aom_tile_columns": 0,
     },
     # SVT-AV1 preset 8; libvpx's good-quality deadline at its fastest speed, two threads sharing
     # rows and two tile columns: the different-day saving of the archive preset's deadline
@@ -76,6 +79,8 @@ PRESETS: dict[str, dict] = {
         "aom_dq": registry.BACKENDS["aom"].q_offset,
         "aom_gop": 1,
         "aom_keep_refresh": False,
+        "aom_fixed_costs": False,
+        "aom_tile_columns": 1,
     },
     # SVT-AV1 preset 6; the joint candidate in AV1 by libaom's good-quality mode at cpu-used 6 (its
     # fastest), one thread: the smallest files (docs/dashcam.md, "Codecs").
@@ -97,6 +102,8 @@ PRESETS: dict[str, dict] = {
         "aom_dq": registry.BACKENDS["aom"].q_offset,
         "aom_gop": 1,
         "aom_keep_refresh": False,
+        "aom_fixed_costs": False,
+        "aom_tile_columns": 0,
     },
 }
 DEFAULT_PRESET = "realtime"
@@ -142,7 +149,10 @@ class IngestOptions:
     layer at ``+12`` over the base, :class:`~egovid.dashcam.codec.aom.RunRefs`);
     ``aom_keep_refresh``: its flat structure keeps every reference refresh in libaom's realtime
     mode (:class:`~egovid.dashcam.codec.settings.EncoderSettings` ``keep_refresh``; False: coded as
-    the first libaom archives);
+    the first libaom archives); ``aom_fixed_costs``: its coefficient, mode and motion-vector cost
+    tables are not updated within a frame (:class:`~egovid.dashcam.codec.settings.EncoderSettings`
+    ``fixed_costs``; False: libaom's defaults); ``aom_tile_columns``: its tile columns (log2; ``tile_columns`` is
+    libvpx's);
     ``preset``: the name of the preset these came from (recorded with each segment).
     """
 
@@ -170,6 +180,8 @@ class IngestOptions:
     aom_dq: int = _D["aom_dq"]
     aom_gop: int = _D["aom_gop"]
     aom_keep_refresh: bool = _D["aom_keep_refresh"]
+    aom_fixed_costs: bool = _D["aom_fixed_costs"]
+    aom_tile_columns: int = _D["aom_tile_columns"]
     preset: str | None = DEFAULT_PRESET
 
     @classmethod
@@ -256,9 +268,10 @@ class IngestOptions:
             fps=vp9.fps,
             gop=self.aom_gop,
             keep_refresh=self.aom_keep_refresh,
+            fixed_costs=self.aom_fixed_costs,
             refresh=self.refresh,
             threads=self.threads,
-            tile_columns=self.tile_columns,
+            tile_columns=self.aom_tile_columns,
             row_mt=self.row_mt,
         )
 

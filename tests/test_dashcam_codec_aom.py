@@ -215,3 +215,30 @@ def test_keep_refresh_keeps_every_frame_the_structure_refreshes(keep):
         iter(new), W, H, EncoderSettings(**{**st.__dict__, "keep_refresh": False}), lambda k: base[k]
     )
     assert (legacy.blob == enc.blob) == (not keep)
+
+
+@pytest.mark.parametrize("fixed", [True, False])
+def test_fixed_costs_reach_libaom_and_decode_bit_exactly(fixed, monkeypatch):
+    """``fixed_costs`` (the realtime preset's joint candidate): libaom is told to leave its
+    cost tables alone within a frame (cheaper; the decoder needs nothing), and
+    only then; the segment decodes to the encoder's pictures with the same baselines either way."""
+    told: list[tuple[int, int]] = []
+    real = aom._Codec._control
+
+    def spy(self, ctrl, value):
+        told.append((ctrl, getattr(value, "value", None)))
+        return real(self, ctrl, value)
+
+    monkeypatch.setattr(aom._Codec, "_control", spy)
+    n = 8
+    new, base = _pair(n)
+    recon: list = []
+    st = EncoderSettings(
+        q=30, speed=7, codec="aom", realtime=True, refresh=n, keep_refresh=True, fixed_costs=fixed, threads=2
+    )
+    enc = registry.encode_segment(iter(new), W, H, st, baselines=lambda k: base[k], keep_recon=recon, verify=True)
+    off = {(c, aom.COST_UPD_OFF) for c in aom.FIXED_COSTS}
+    assert aom.AV1E_SET_COEFF_COST_UPD_FREQ in aom.FIXED_COSTS
+    assert off <= set(told) if fixed else not off & set(told)
+    out = list(registry.decode_segment(enc.blob, lambda k: base[k]))
+    assert len(out) == n and all(np.array_equal(a, b) for a, b in zip(out, recon, strict=True))

@@ -78,7 +78,7 @@ def test_a_piece_is_coded_jointly_in_av1_and_the_choice_recorded(pair):
         rt = PRESETS["realtime"]
         assert joint[0].params["realtime"] and joint[0].params["q"] == 32 + rt["aom_dq"]
         assert (joint[0].params["speed"], joint[0].params["gop"], joint[0].params["preset"]) == (7, 1, "realtime")
-        assert joint[0].params["keep_refresh"]
+        assert joint[0].params["keep_refresh"] and joint[0].params["fixed_costs"]
         assert joint[0].ref_drive_id == a.id
         # The injected reference is what the pictures are predicted from: without it libaom refuses,
         # with a grey picture in its place the pictures come out otherwise.
@@ -129,10 +129,10 @@ def test_the_joint_codec_must_code_against_the_older_drive(pair):
 def test_the_presets_joint_codecs():
     """The archive preset's joint candidate is libaom in good quality at its fastest speed, flat;
     the default realtime preset's is libaom's realtime mode at cpu-used 7, flat, every reference
-    refresh kept, at --q + 10;
+    refresh kept, cost tables fixed within a frame, at --q + 10;
     --joint-codec vp9 gives the VP9 settings of before (the balanced preset's default)."""
     st = IngestOptions.from_preset("archive").joint_settings(30.0)
-    assert (st.codec, st.realtime, st.speed, st.q, st.threads, st.gop, st.keep_refresh) == (
+    assert (st.codec, st.realtime, st.speed, st.q, st.threads, st.gop, st.keep_refresh, st.fixed_costs) == (
         "aom",
         False,
         6,
@@ -140,10 +140,12 @@ def test_the_presets_joint_codecs():
         1,
         1,
         False,
+        False,
     )
     st = IngestOptions().joint_settings(25.0)
     assert (st.codec, st.realtime, st.speed, st.q, st.gop, st.fps, st.refresh) == ("aom", True, 7, 42, 1, 25, 24)
-    assert st.keep_refresh
+    assert st.keep_refresh and st.fixed_costs and st.tile_columns == 0  # libaom's; libvpx's stay at 1
+    assert IngestOptions().encoder_settings(25.0).tile_columns == 1
     assert IngestOptions.from_preset(None) == IngestOptions() and IngestOptions().preset == "realtime"
     vp9 = IngestOptions.from_preset("realtime", joint_codec="vp9")
     assert vp9.joint_settings(30.0) == vp9.encoder_settings(30.0) and vp9.joint_settings(30.0).codec == "vp9"

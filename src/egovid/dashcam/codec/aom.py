@@ -58,6 +58,11 @@ AV1E_SET_ENABLE_TPL_MODEL = 35
 AV1E_SET_ENABLE_KEYFRAME_FILTERING = 36
 AV1E_SET_AQ_MODE = 40
 AV1E_SET_COEFF_COST_UPD_FREQ = 126
+AV1E_SET_MODE_COST_UPD_FREQ = 127
+AV1E_SET_MV_COST_UPD_FREQ = 128
+COST_UPD_OFF = 3  # the cost-update frequency controls' "turn off"
+#: The cost tables :class:`AomSettings` ``fixed_costs`` leaves alone within a frame.
+FIXED_COSTS = (AV1E_SET_COEFF_COST_UPD_FREQ, AV1E_SET_MODE_COST_UPD_FREQ, AV1E_SET_MV_COST_UPD_FREQ)
 AV1E_SET_DELTAQ_MODE = 107
 AV1E_SET_SVC_REF_FRAME_CONFIG = 133
 AOM_EFLAG_FORCE_KF = 1
@@ -343,7 +348,9 @@ def ref_config(refs: dict[int, int], refresh: tuple[int, ...], spare: int = 0) -
 class AomSettings:
     """libaom's settings for one encoder: fixed quantiser ``q`` (0-63), ``speed`` (cpu-used: 0-9 in
     good quality, 0-10 in realtime), ``realtime`` (AOM_USAGE_REALTIME instead of good quality),
-    ``threads``, ``row_mt``, ``tile_columns`` (log2), ``fps``."""
+    ``threads``, ``row_mt``, ``tile_columns`` (log2), ``fps``; ``fixed_costs``: the coefficient,
+    mode and motion-vector cost tables are not updated within a frame (:data:`FIXED_COSTS` off;
+    False: libaom's defaults, as the first archives)."""
 
     q: int
     speed: int
@@ -352,6 +359,7 @@ class AomSettings:
     row_mt: bool = True
     tile_columns: int = 0
     fps: int = 30
+    fixed_costs: bool = False
 
 
 class AV1Encoder(_Codec):
@@ -409,6 +417,8 @@ class AV1Encoder(_Codec):
             (AV1E_SET_ENABLE_TPL_MODEL, 0),
             (AV1E_SET_ENABLE_KEYFRAME_FILTERING, 0),
         ]
+        if settings.fixed_costs:
+            controls += [(c, COST_UPD_OFF) for c in FIXED_COSTS]
         for ctrl, value in controls:
             self._control(ctrl, ctypes.c_int(value))
         self._pts = 0

@@ -43,6 +43,7 @@ def aom_settings(settings: EncoderSettings) -> aom.AomSettings:
         row_mt=settings.row_mt,
         tile_columns=settings.tile_columns,
         fps=settings.fps,
+        fixed_costs=settings.fixed_costs,
     )
 
 

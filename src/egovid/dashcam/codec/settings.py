@@ -43,7 +43,10 @@ class EncoderSettings:
     the one predicted from the baseline alone (0 = ``speed``); ``keep_refresh`` (libaom): every
     slot refresh of the structure is kept in libaom's realtime mode, which otherwise drops those
     of slots no reference type points at (:class:`~egovid.dashcam.codec.aom.RunRefs`; False: the
-    flat structure of the first libaom archives, byte for byte; layers always keep theirs)."""
+    flat structure of the first libaom archives, byte for byte; layers always keep theirs);
+    ``fixed_costs`` (libaom): no updates of the coefficient, mode and motion-vector cost tables
+    within a frame (:class:`~egovid.dashcam.codec.aom.AomSettings`; an encoder setting only, the
+    decoder needs nothing; False: libaom's defaults, as the first libaom archives)."""
 
     q: int
     speed: int
@@ -58,6 +61,7 @@ class EncoderSettings:
     row_mt: bool = False
     start_speed: int = 0
     keep_refresh: bool = False
+    fixed_costs: bool = False
 
     def __post_init__(self) -> None:
         if self.codec not in SPEEDS:

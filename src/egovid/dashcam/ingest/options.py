@@ -23,15 +23,20 @@ CODECS = ("av1", "vp9")  # what standalone pieces can be stored in
 #: ``joint_codec``: the codec of the joint candidate (``vp9``: libvpx at ``speed``; ``aom``: AV1 by
 #: libaom at cpu-used ``aom_speed``, its realtime mode where ``realtime``, else good quality, at
 #: quantiser ``--q`` + ``aom_dq``, in temporal layers of period ``aom_gop`` (1: flat), every
-#: reference refresh kept where ``aom_keep_refresh``).
+#: reference refresh kept where ``aom_keep_refresh``, its cost tables fixed within a frame where
+#: ``aom_fixed_costs``, in ``2^aom_tile_columns`` tile columns).
 PRESETS: dict[str, dict] = {
     # SVT-AV1 preset 10 for standalone pieces; the joint candidate in AV1 by libaom's realtime
     # mode at cpu-used 7, flat (each frame from the ones before it and the older drive), every
     # reference refresh kept, at --q + 10 (about SVT-AV1's PSNR-Y at --q + 14), two threads
-    # sharing rows and two tile columns: new drives of the day set -26.1 % BD-rate (PSNR-Y) against
-    # plain SVT-AV1 preset 10 through `egovid dashcam ingest` (VP9 joint: +0.3 %, it lost every
-    # piece), the whole archive -41.9 % against the VP9 archive of before (docs/dashcam.md,
-    # "Codecs"). Temporal layers (aom_gop 4, base at --q + 5) measured -19.6 %: not taken.
+    # sharing rows in one tile column, its coefficient, mode and motion-vector cost tables fixed
+    # within a frame: new drives of the day set -27.3 % BD-rate (PSNR-Y) against plain SVT-AV1
+    # preset 10 through `egovid dashcam ingest` (-25.9 % with two tile columns and libaom's cost
+    # updates, the same session; VP9 joint: +0.3 %, it lost every piece), the whole archive
+    # -41.9 % against the VP9 archive of before (docs/dashcam.md, "Codecs"). Speed, 720p joint
+    # drive, 2 cores: 34.1-35.6 fps against 29.7-31.0 before (2026-12-05 09:41-09:44 UTC, load
+    # 4.7-8.7, benchmarks/dashcam_ingest_speed.py, docs/dashcam.md "Faster since"); 1080p
+    # 17.4 fps against 17.2. Temporal layers (aom_gop 4, base at --q + 5) measured -19.6 %: not taken.
     # The VP9 settings (libvpx realtime at its fastest, first frame of a joint run at cpu-used 5)
     # serve --joint-codec vp9 and --codec vp9. One set of ORB key points per frame shared by the
     # search and the refinement, which measure every 2nd frame (the others interpolated).
@@ -53,6 +58,8 @@ PRESETS: dict[str, dict] = {
         "aom_dq": 10,
         "aom_gop": 1,
         "aom_keep_refresh": True,
+        "aom_fixed_costs": True,
+        "aom_tile_columns": 0,
     },
     # SVT-AV1 preset 8; libvpx's good-quality deadline at its fastest speed, two threads sharing
     # rows and two tile columns: the different-day saving of the archive preset's deadline
@@ -76,6 +83,8 @@ PRESETS: dict[str, dict] = {
         "aom_dq": registry.BACKENDS["aom"].q_offset,
         "aom_gop": 1,
         "aom_keep_refresh": False,
+        "aom_fixed_costs": False,
+        "aom_tile_columns": 1,
     },
     # SVT-AV1 preset 6; the joint candidate in AV1 by libaom's good-quality mode at cpu-used 6 (its
     # fastest), one thread: the smallest files (docs/dashcam.md, "Codecs").
@@ -97,6 +106,8 @@ PRESETS: dict[str, dict] = {
         "aom_dq": registry.BACKENDS["aom"].q_offset,
         "aom_gop": 1,
         "aom_keep_refresh": False,
+        "aom_fixed_costs": False,
+        "aom_tile_columns": 0,
     },
 }
 DEFAULT_PRESET = "realtime"
@@ -142,7 +153,10 @@ class IngestOptions:
     layer at ``+12`` over the base, :class:`~egovid.dashcam.codec.aom.RunRefs`);
     ``aom_keep_refresh``: its flat structure keeps every reference refresh in libaom's realtime
     mode (:class:`~egovid.dashcam.codec.settings.EncoderSettings` ``keep_refresh``; False: coded as
-    the first libaom archives);
+    the first libaom archives); ``aom_fixed_costs``: its coefficient, mode and motion-vector cost
+    tables are not updated within a frame (:class:`~egovid.dashcam.codec.settings.EncoderSettings`
+    ``fixed_costs``; False: libaom's defaults); ``aom_tile_columns``: its tile columns (log2; ``tile_columns`` is
+    libvpx's);
     ``preset``: the name of the preset these came from (recorded with each segment).
     """
 
@@ -170,6 +184,8 @@ class IngestOptions:
     aom_dq: int = _D["aom_dq"]
     aom_gop: int = _D["aom_gop"]
     aom_keep_refresh: bool = _D["aom_keep_refresh"]
+    aom_fixed_costs: bool = _D["aom_fixed_costs"]
+    aom_tile_columns: int = _D["aom_tile_columns"]
     preset: str | None = DEFAULT_PRESET
 
     @classmethod
@@ -256,9 +272,10 @@ class IngestOptions:
             fps=vp9.fps,
             gop=self.aom_gop,
             keep_refresh=self.aom_keep_refresh,
+            fixed_costs=self.aom_fixed_costs,
             refresh=self.refresh,
             threads=self.threads,
-            tile_columns=self.tile_columns,
+            tile_columns=self.aom_tile_columns,
             row_mt=self.row_mt,
         )
 

@@ -570,6 +570,7 @@ def _encoded(run, opts, enc, sha, kept, why, encoders, alone, joint, t_start) ->
         "threads": st.threads,
         "gop": st.gop,
         "keep_refresh": st.keep_refresh,
+        "fixed_costs": st.fixed_costs,
         "refresh": st.refresh,
         "preset": opts.preset,
         "recon_digest": enc.recon_digest,

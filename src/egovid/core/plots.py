@@ -2,18 +2,33 @@
 
 from __future__ import annotations
 
+import importlib
 import os
 from pathlib import Path
+from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 
 from egovid.core.files import atomic_path
 
 AXES = ("yaw", "pitch", "roll")
+
+
+class _Pyplot:
+    """``matplotlib.pyplot`` (Agg backend), imported on first use: importing it costs about a
+    second, which every command that imports a module with a figure in it (``egovid fpv
+    stabilize`` without ``--report``) would otherwise pay without drawing anything."""
+
+    _module: Any = None
+
+    def __getattr__(self, name: str) -> Any:
+        if _Pyplot._module is None:
+            importlib.import_module("matplotlib").use("Agg")
+            _Pyplot._module = importlib.import_module("matplotlib.pyplot")
+        return getattr(_Pyplot._module, name)
+
+
+plt: Any = _Pyplot()
 
 
 def save(fig, path: str | os.PathLike, dpi: int = 110) -> Path:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import av
 import numpy as np
+from av.video.reformatter import VideoReformatter
 
 from egovid.core.errors import EgovidError
 from egovid.core.video.container import FIX_VIDEO, cut_accepted, ffmpeg_reason, open_video, packet_cut
@@ -87,9 +88,10 @@ def iter_frames(
         reorder = _Reorder(_REORDER_DEPTH)
         timeline = _Timeline(nominal)
         decoded = 0
+        scaler = VideoReformatter()  # one swscale context for the whole video, not one per frame
         try:
             for frame in _decoded(container, stream, path):
-                img = _picture(frame, gray, i420, scale)
+                img = _picture(frame, gray, i420, scale, scaler)
                 pts = frame.pts if frame.pts is not None else frame.dts
                 t = float(pts * tb) if (pts is not None and tb) else decoded * nominal
                 decoded += 1
@@ -112,16 +114,17 @@ def iter_frames(
         container.close()
 
 
-def _picture(frame: av.VideoFrame, gray: bool, i420: bool, scale: float | None) -> np.ndarray:
+def _picture(frame: av.VideoFrame, gray: bool, i420: bool, scale: float | None, scaler: VideoReformatter) -> np.ndarray:
     """One decoded frame as :func:`iter_frames` yields its image: pixel format, scale, display
-    orientation."""
+    orientation. ``scaler`` is reused from frame to frame: ``VideoFrame.to_ndarray(format=...)``
+    would set up a new swscale context (and its threads) for every frame; the pixels are the same."""
     fmt = "yuv420p" if i420 else ("gray" if gray else "bgr24")
     if scale is not None and scale != 1.0:
         sw = max(2, round(frame.width * scale))
         sh = max(2, round(frame.height * scale))
-        img = frame.to_ndarray(format=fmt, width=sw, height=sh, interpolation="AREA")
+        img = scaler.reformat(frame, sw, sh, fmt, interpolation="AREA").to_ndarray()
     else:
-        img = frame.to_ndarray(format=fmt)
+        img = scaler.reformat(frame, format=fmt).to_ndarray()
     rotation = rotation_of(frame)
     return rotate_i420(img, rotation) if i420 else to_display(img, rotation)
 

@@ -32,6 +32,7 @@ grows linearly with length.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -155,6 +156,17 @@ class _LP:
         self._v: list[np.ndarray] = []
         self._b: list[np.ndarray] = []
 
+    def copy(self) -> _LP:
+        """A programme to extend without touching this one: the lists are new, the term arrays
+        shared (never written), the bounds copied (a window's head fixes some)."""
+        out = _LP()
+        out.n, out.m = self.n, self.m
+        out.cost = list(self.cost)
+        out.lo = [a.copy() for a in self.lo]
+        out.hi = [a.copy() for a in self.hi]
+        out._r, out._c, out._v, out._b = list(self._r), list(self._c), list(self._v), list(self._b)
+        return out
+
     def add_vars(self, count: int, cost: float = 0.0, lo: float = -np.inf, hi: float = np.inf) -> slice:
         s = slice(self.n, self.n + count)
         self.n += count
@@ -219,6 +231,27 @@ def bspline_basis(n: int, spacing: float) -> sp.csr_matrix:
     return sp.csr_matrix((w.ravel(), (rows, cols)), shape=(n, int(seg.max()) + 4))
 
 
+@functools.lru_cache(maxsize=16)
+def _smoothness_terms(m: int, min_keep: float, weights: PathWeights, H: float) -> _LP:
+    """The part of a window's programme that its data do not change, for ``m`` coefficients: the
+    variables (yaw, pitch, roll deviations, then the percent cropped ``u``, ``m`` each, in that
+    order) and the L1 terms on them. Built once per window size and shared by every window and
+    fit of a job (a path fit solves several; extend a :meth:`_LP.copy`, never this)."""
+    lp = _LP()
+    c = [lp.add_vars(m, 0.0, -45.0, 45.0) for _ in range(3)]
+    u = lp.add_vars(m, weights.zoom * H, 0.0, 100.0 * (1.0 - min_keep))
+    eye = sp.identity(m, format="csr")
+    # A k-th difference of coefficients spaced H frames is about H**k times a per-frame one, and
+    # stands for H frames: weight w_k H**(1 - k).
+    for ax in range(3):
+        lp.l1(c[ax], eye, weights.plan * H)
+        for k, w in ((1, weights.d1), (2, weights.d2), (3, weights.d3)):
+            lp.l1(c[ax], _diff(m, k), w * H ** (1 - k))
+    for k, w in ((1, weights.z1), (2, weights.z2), (3, weights.z3)):
+        lp.l1(u, _diff(m, k), w * H ** (1 - k))
+    return lp
+
+
 def _solve_window(
     original: np.ndarray,
     plan: np.ndarray,
@@ -235,23 +268,14 @@ def _solve_window(
     (d_yaw, d_pitch, d_roll, u = percent cropped); ``head`` fixes the first rows. ``H`` is the
     coefficient spacing in frames at 30 fps (weights are per frame at 30 fps)."""
     n, m = B.shape
-    lp = _LP()
-    c = [lp.add_vars(m, 0.0, -45.0, 45.0) for _ in range(3)]
-    u = lp.add_vars(m, weights.zoom * H, 0.0, 100.0 * (1.0 - min_keep))
+    lp = _smoothness_terms(m, min_keep, weights, H).copy()
+    c = [slice(i * m, (i + 1) * m) for i in range(3)]
+    u = slice(3 * m, 4 * m)
     if head is not None:
         h = len(head)
         for ch in range(4):
             lp.lo[ch][:h] = head[:, ch]
             lp.hi[ch][:h] = head[:, ch]
-    eye = sp.identity(m, format="csr")
-    # A k-th difference of coefficients spaced H frames is about H**k times a per-frame one, and
-    # stands for H frames: weight w_k H**(1 - k).
-    for ax in range(3):
-        lp.l1(c[ax], eye, weights.plan * H)
-        for k, w in ((1, weights.d1), (2, weights.d2), (3, weights.d3)):
-            lp.l1(c[ax], _diff(m, k), w * H ** (1 - k))
-    for k, w in ((1, weights.z1), (2, weights.z2), (3, weights.z3)):
-        lp.l1(u, _diff(m, k), w * H ** (1 - k))
     # Corner constraints on every frame, linearised at the current zoom keep0.
     J = deviation_jacobian(original)  # (n, 3, 3) radians per degree
     w0 = (J @ (plan - original)[:, :, None])[:, :, 0]  # (n, 3) ω where the path is the plan

@@ -76,12 +76,13 @@ def stabilize_video(
     ``progress(stage, done, total)`` reports the stages.
     """
     fps = probe(src).fps
-    camera = resolve_camera(src, focal, hfov)
     traj = motion if isinstance(motion, Trajectory) or motion is None else _motion_of(src, motion)
     cm = None
-    if traj is None:
+    if traj is None:  # the motion source resolves the camera itself (one ExifTool run per job)
         cm = camera_motion(src, source, focal=focal, hfov=hfov, progress=progress)
         traj, camera = cm.trajectory, cm.camera
+    else:
+        camera = resolve_camera(src, focal, hfov)
     intr = camera.intrinsics
     res = stabilize(
         src,

@@ -85,20 +85,24 @@ class MeshWarp:
         }
 
     def source_points(self, view: FrameView, ux: np.ndarray, uy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Source pixels (luma, display orientation) that output pixels ``(ux, uy)`` show."""
+        """Source pixels (luma, display orientation) that output pixels ``(ux, uy)`` show.
+
+        ``view`` may also hold K views at once (``R_new`` (K, 3, 3), ``R_rows`` (B, K, 3, 3),
+        ``zoom`` (K, 1)) with points (1, N) or (K, N): then (K, N) pixels each."""
         cx, cy = (self.w - 1) / 2.0, (self.h - 1) / 2.0
         z = view.zoom
         vx = cx + (ux - cx) / z
         vy = cy + (uy - cy) / z
         rays = unproject(self.lens, self.intr, vx, vy)
-        d = rays @ view.R_new.T  # world directions
+        d = rays @ np.swapaxes(view.R_new, -1, -2)  # world directions
         B = len(view.R_rows)
         Rc = view.R_rows[B // 2] if B > 1 else view.R_rows[0]
         p = project(self.lens, self.intr, d @ Rc)  # Rᵀ d, row vectors
         if B > 1:
             s = readout_position(p[..., 0], p[..., 1], self.w, self.h, self.rotation)
             idx = np.clip(np.rint(s * (B - 1)).astype(int), 0, B - 1)
-            Rs = view.R_rows[idx]  # (..., 3, 3)
+            # (..., 3, 3); K views: each point's band of its own frame, (K, N, 3, 3)
+            Rs = view.R_rows[idx, np.arange(len(idx))[:, None]] if np.ndim(view.R_new) == 3 else view.R_rows[idx]
             cam = np.einsum("...ji,...j->...i", Rs, d)  # R(s)ᵀ d
             p = project(self.lens, self.intr, cam)
         return p[..., 0], p[..., 1]
@@ -156,31 +160,52 @@ class MeshWarp:
             )
         return out
 
-    def coverage_shortfall(self, view: FrameView) -> float:
-        """Pixels by which the output frame's border falls outside the source frame (<= 0:
-        covered), checked on the output border at every ``cell``/2 pixels."""
+    def _border(self) -> tuple[np.ndarray, np.ndarray]:
+        """Output-border points (x, y) that :meth:`coverage_shortfall` checks (132 of them)."""
         w, h = self.w, self.h
         t = np.linspace(0, 1, 33)
         ux = np.concatenate([t * (w - 1), np.full_like(t, w - 1), t[::-1] * (w - 1), np.zeros_like(t)])
         uy = np.concatenate([np.zeros_like(t), t * (h - 1), np.full_like(t, h - 1), t[::-1] * (h - 1)])
-        px, py = self.source_points(view, ux, uy)
+        return ux, uy
+
+    def coverage_shortfall(self, view: FrameView) -> float:
+        """Pixels by which the output frame's border falls outside the source frame (<= 0:
+        covered), checked on the output border at every ``cell``/2 pixels."""
+        w, h = self.w, self.h
+        px, py = self.source_points(view, *self._border())
         return float(np.max(np.maximum.reduce([-px, -py, px - (w - 1), py - (h - 1)])))
+
+    def coverage_shortfalls(self, R_new: np.ndarray, R_rows: np.ndarray, zoom: np.ndarray) -> np.ndarray:
+        """(K,) :meth:`coverage_shortfall` of K views at once: ``R_new`` (K, 3, 3), ``R_rows``
+        (K, B, 3, 3), ``zoom`` (K,)."""
+        w, h = self.w, self.h
+        ux, uy = self._border()
+        view = FrameView(R_new, R_rows.swapaxes(0, 1), np.asarray(zoom, float)[:, None])
+        px, py = self.source_points(view, ux[None, :], uy[None, :])
+        return np.max(np.maximum.reduce([-px, -py, px - (w - 1), py - (h - 1)]), axis=1)
 
 
 def required_zoom(warp: MeshWarp, views: list[FrameView], max_zoom: float = 4.0) -> np.ndarray:
-    """(K,) the least zoom that keeps each view's output frame inside its source (bisection)."""
+    """(K,) the least zoom that keeps each view's output frame inside its source (bisection, 24
+    halvings from [1, ``max_zoom``]; 1 where zoom 1 is covered). All frames are bisected together
+    (:meth:`MeshWarp.coverage_shortfalls`): the same arithmetic, point by point, as one
+    :meth:`MeshWarp.coverage_shortfall` per frame and step, without its per-call cost."""
+    if not views:
+        return np.ones(0)
+    R_new = np.stack([v.R_new for v in views])
+    R_rows = np.stack([v.R_rows for v in views])
     out = np.ones(len(views))
-    for k, v in enumerate(views):
-        if warp.coverage_shortfall(FrameView(v.R_new, v.R_rows, 1.0)) <= 0.0:
-            continue
-        lo, hi = 1.0, max_zoom
-        for _ in range(24):
-            mid = 0.5 * (lo + hi)
-            if warp.coverage_shortfall(FrameView(v.R_new, v.R_rows, mid)) <= 0.0:
-                hi = mid
-            else:
-                lo = mid
-        out[k] = hi
+    todo = np.flatnonzero(warp.coverage_shortfalls(R_new, R_rows, np.ones(len(views))) > 0.0)
+    if len(todo) == 0:
+        return out
+    R_new, R_rows = R_new[todo], R_rows[todo]
+    lo, hi = np.ones(len(todo)), np.full(len(todo), float(max_zoom))
+    for _ in range(24):
+        mid = 0.5 * (lo + hi)
+        good = warp.coverage_shortfalls(R_new, R_rows, mid) <= 0.0
+        hi = np.where(good, mid, hi)
+        lo = np.where(good, lo, mid)
+    out[todo] = hi
     return out
 
 

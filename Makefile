@@ -49,8 +49,9 @@ lint: $(STAMP)
 
 # Two pytest workers, a test file each (--dist loadfile keeps a file's shared fixtures in one
 # process): one worker often waits on a subprocess, a server or the encoder while the other
-# computes. 749 tests: 8.0 min of pytest, 8.7 min for make test from a clean clone with ../shared
-# beside it (2026-12-04, the 2-core machine, quiet; 17.7 min with others' benchmarks at load 20-27).
+# computes. 798 tests: 8.7 min of pytest, 9.4 min for make test from a clean clone with ../shared
+# beside it (2026-12-05, the 2-core machine at load 10-12; 8.0 min for 749 tests when quiet on
+# 2026-12-04, 17.7 min with others' benchmarks at load 20-27).
 # --durations names the slowest, so a CI log says where the time went. The whole run is
 # interrupted after 70 minutes (pytest then prints what it has, stacks and summary) so that a hang
 # shows in the log instead of running into CI's 90-minute limit with nothing printed.

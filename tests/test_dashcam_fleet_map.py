@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
+import signal
 import subprocess
 from pathlib import Path
 
@@ -20,15 +22,28 @@ def chromium() -> str:
     return exe
 
 
-def browse(page: Path, tmp: Path) -> str:
-    """The DOM of ``page`` after its scripts ran, from headless Chromium (offline: no network here)."""
-    r = subprocess.run(
-        [chromium(), "--headless", "--no-sandbox", "--disable-gpu", f"--user-data-dir={tmp / 'profile'}",
-         "--virtual-time-budget=5000", "--window-size=1000,700", "--dump-dom", page.as_uri()],
-        capture_output=True, text=True, timeout=180,
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr[-2000:]
-    return r.stdout
+def browse(page: Path, tmp: Path, timeout_s: float = 90.0, tries: int = 2) -> str:
+    """The DOM of ``page`` after its scripts ran, from headless Chromium (offline: no network here).
+
+    Chromium runs in its own session and, past ``timeout_s`` seconds, its whole process group is
+    killed (killing only the browser process left its zygotes spinning on a loaded machine); a
+    timed-out try is tried once more with a fresh profile, and a second one fails the test."""
+    for attempt in range(tries):
+        profile = tmp / f"profile-{attempt}"
+        proc = subprocess.Popen(
+            [chromium(), "--headless", "--no-sandbox", "--disable-gpu", f"--user-data-dir={profile}",
+             "--virtual-time-budget=5000", "--window-size=1000,700", "--dump-dom", page.as_uri()],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+        )  # fmt: skip
+        try:
+            out, err = proc.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate(timeout=30)
+            continue
+        assert proc.returncode == 0, err[-2000:]
+        return out
+    pytest.fail(f"headless Chromium did not render {page.name} within {timeout_s:.0f} s, {tries} tries")
 
 
 def _drives() -> list[MapDrive]:

@@ -2,7 +2,6 @@
 commit, GPS that would poison the archive."""
 
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -165,19 +164,26 @@ def _locks(kind, tmp_path, request):
 def test_area_locks_serialise_the_same_road_and_gc_refuses_while_an_ingest_runs(kind, tmp_path, request):
     locks = _locks(kind, tmp_path, request)
     events = []
-    first_holds, second_done = threading.Event(), threading.Event()
+    first_holds, second_waits, gc_tried, second_done = (threading.Event() for _ in range(4))
 
     def first():
+        # Holds its area until the second ingest waits for it and gc has been tried, so a loaded
+        # machine cannot let both finish before the main thread tries gc (CI saw that race).
         with locks.ingest() as s:
             s.acquire({"c1_1", "c2_1"})
             events.append("first has c1_1")
             first_holds.set()
-            time.sleep(0.5)
+            second_waits.wait(30)
+            gc_tried.wait(30)
             events.append("first commits")
 
+    def on_wait(_k):
+        events.append("second waits")
+        second_waits.set()
+
     def second():
-        first_holds.wait(10)
-        with locks.ingest(on_wait=lambda _k: events.append("second waits")) as s:
+        first_holds.wait(30)
+        with locks.ingest(on_wait=on_wait) as s:
             s.acquire({"c9_9"})  # another place: free at once
             s.acquire({"c2_1"})  # below what it holds: released and taken again in order
             events.append("second has c2_1")
@@ -186,12 +192,15 @@ def test_area_locks_serialise_the_same_road_and_gc_refuses_while_an_ingest_runs(
     threads = [threading.Thread(target=first), threading.Thread(target=second)]
     for t in threads:
         t.start()
-    assert first_holds.wait(10)
-    with pytest.raises(EgovidError, match="busy"), locks.maintenance("gc"):
-        pass
+    assert first_holds.wait(30)
+    try:
+        with pytest.raises(EgovidError, match="busy"), locks.maintenance("gc"):
+            pass
+    finally:
+        gc_tried.set()
     for t in threads:
-        t.join(30)
-    assert second_done.is_set()
+        t.join(60)
+    assert second_done.is_set() and second_waits.is_set()
     assert events == ["first has c1_1", "second waits", "first commits", "second has c2_1"]
     with locks.maintenance("gc"):  # nobody ingests now
         pass

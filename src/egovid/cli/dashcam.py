@@ -336,6 +336,8 @@ def _print_report(rep, fleet=None) -> None:
     )
     for note in fleet.notes if fleet is not None else ():
         err_console.print(f"note: {rep.name}: {note}")
+    for why in rep.encoder_restarts:
+        err_console.print(f"note: {rep.name}: an encoder was restarted ({why}); the piece was coded again")
 
 
 def _table(title: str, columns: tuple[str, ...], rows, right: tuple[str, ...] | bool = ()):

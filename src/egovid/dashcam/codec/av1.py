@@ -16,6 +16,7 @@ keyframe that carries the sequence header.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import time
@@ -107,7 +108,10 @@ def encode_segment(
             k = state["coded"]
             if (settings.refresh and k % settings.refresh == 0) or k == 0:
                 if not p.is_keyframe:
-                    raise EgovidError(f"SVT-AV1 did not start the random-access run at frame {k} with a keyframe")
+                    raise segment.EncoderFaultError(
+                        f"SVT-AV1 did not start the random-access run at frame {k} with a keyframe",
+                        "run the ingest again; if it recurs, pass --codec vp9",
+                    )
                 out.begin_run(segment.START_KEY)
             data = bytes(p)
             out.emit(data, k)
@@ -143,6 +147,12 @@ def encode_segment(
         show(dec.decode(None))
     except BaseException:
         out.close()
+        # An SVT-AV1 context freed with frames in flight and no end of stream can block for ever
+        # in svt_av1_enc_deinit holding the GIL (the exception's traceback keeps it alive until
+        # some later collection, in any thread): end its stream here, in this thread, first.
+        with contextlib.suppress(Exception):
+            if state["coded"] or sources:
+                enc.encode(None)
         raise
     if state["shown"] != state["coded"]:
         out.close()

@@ -57,6 +57,13 @@ from egovid.core.metrics.psnr import psnr_db
 from egovid.dashcam.codec import vpx
 from egovid.dashcam.codec.settings import EncoderSettings
 
+
+class EncoderFaultError(EgovidError):
+    """An encoder misbehaved (stopped responding, or broke the stream's structure): not the
+    input's fault; coding the piece again in a fresh encoder is expected to work
+    (:mod:`egovid.dashcam.ingest.watchdog`)."""
+
+
 #: Blob magic per codec (the layout after it is the same: header, run layout, packets).
 MAGICS = {"vp9": b"EGV9", "av1": b"EGA1", "aom": b"EGAM"}
 MAGIC = MAGICS["vp9"]

@@ -37,22 +37,29 @@ class InputFrame:
 
 
 def decode_once(
-    video: str | os.PathLike | Sequence[str | os.PathLike], width: int, height: int, clock: dict | None = None
+    video: str | os.PathLike | Sequence[str | os.PathLike],
+    width: int,
+    height: int,
+    clock: dict | None = None,
+    start: int = 0,
 ) -> Iterator[InputFrame]:
-    """Every frame of ``video`` (or of several files back to back: a trip), decoded once, in
-    presentation order, by a background thread a few frames ahead (:func:`extract.read_ahead`;
-    close the generator when done). ``clock['decode']`` (if given) accumulates the seconds spent
-    decoding."""
-    return read_ahead(_decode(video, width, height, clock), READ_AHEAD)
+    """Every frame of ``video`` (or of several files back to back: a trip) from frame ``start``
+    on, decoded once, in presentation order, by a background thread a few frames ahead
+    (:func:`extract.read_ahead`; close the generator when done). ``clock['decode']`` (if given)
+    accumulates the seconds spent decoding. Frames before ``start`` are decoded and skipped (a
+    piece coded again after an encoder fault: rare)."""
+    return read_ahead(_decode(video, width, height, clock, start), READ_AHEAD)
 
 
-def _decode(video, width: int, height: int, clock: dict | None) -> Iterator[InputFrame]:
+def _decode(video, width: int, height: int, clock: dict | None, start: int) -> Iterator[InputFrame]:
     frames = iter_trip_frames([video] if isinstance(video, str | os.PathLike) else list(video), i420=True)
     while True:
         t0 = time.perf_counter()
         fr = next(frames, None)
         if fr is None:
             return
+        if fr.index < start:
+            continue
         item = InputFrame(fr.index, fr.image, small_gray(fr.image, width, height))
         if clock is not None:
             clock["decode"] = clock.get("decode", 0.0) + time.perf_counter() - t0

@@ -40,13 +40,14 @@ from egovid.core.metrics.psnr import psnr_db
 from egovid.dashcam.align import ALIGNERS
 from egovid.dashcam.align.illumination import frame_features
 from egovid.dashcam.align.orb import OrbScorer, small_gray, warm_up, wide_window
-from egovid.dashcam.codec import registry, vpx
 from egovid.dashcam.codec import segment as codec
+from egovid.dashcam.codec import vpx
 from egovid.dashcam.extract import FrameSource
 from egovid.dashcam.ingest.frames import InputFrame, RefFrames
 from egovid.dashcam.ingest.options import IngestOptions
 from egovid.dashcam.ingest.records import DriveTrack, EncodedPiece, PiecePlan
 from egovid.dashcam.ingest.stages import choose_baseline
+from egovid.dashcam.ingest.watchdog import EncoderStallError, EncoderWatch, Heartbeat
 
 LOOKAHEAD = 24  # frames whose light chooses the baseline (one random-access period)
 LIGHT_EVERY = 4  # after the first LOOKAHEAD frames, every 4th frame's light counts
@@ -303,8 +304,9 @@ class _PieceRun:
                     raise RuntimeError(f"the alignment gave {k_out} of {self.n} matches")
             for p in pipes:
                 p.close()
-        except _StoppedError:
-            pass
+        except _StoppedError:  # an encoder stopped: end the others' streams (they flush and finish)
+            for p in pipes:
+                p.close()
         except BaseException as exc:  # handed to the encoder's thread
             for p in pipes:
                 p.close(exc)
@@ -332,8 +334,11 @@ class _PieceRun:
         return k, image, base
 
 
-def _encode_from(pipe: _Pipe, clock: dict, stage: str, *args, **kwargs) -> codec.EncodedSegment:
-    """registry.encode_segment of the frames coming down ``pipe`` (baselines with them)."""
+def _encode_from(
+    pipe: _Pipe, clock: dict, stage: str, watch: EncoderWatch, beat: Heartbeat, *args, **kwargs
+) -> codec.EncodedSegment:
+    """``watch.encode`` (the registry's encode_segment) of the frames coming down ``pipe``
+    (baselines with them); ``beat`` says while the codec has control of a frame or the flush."""
     bases: dict[int, np.ndarray] = {}
 
     def frames() -> Iterator[np.ndarray]:
@@ -342,8 +347,11 @@ def _encode_from(pipe: _Pipe, clock: dict, stage: str, *args, **kwargs) -> codec
             clock["wait:" + stage] = clock.get("wait:" + stage, 0.0) + time.perf_counter() - t0
             if base is not None:
                 bases[k] = base
+            beat.busy(watch.stall_s)
             yield image
+            beat.idle()
             t0 = time.perf_counter()
+        beat.busy(watch.stall_s * watch.flush_factor)  # the end of stream: the flush
 
     def baseline(k: int) -> np.ndarray | None:
         for old in [j for j in bases if j < k - 64]:  # asked for never (a keyframe's, a P frame's)
@@ -352,8 +360,9 @@ def _encode_from(pipe: _Pipe, clock: dict, stage: str, *args, **kwargs) -> codec
 
     local: dict = {}
     try:
-        return registry.encode_segment(frames(), *args, baselines=baseline, clock=local, **kwargs)
+        return watch.encode(frames(), *args, baselines=baseline, clock=local, **kwargs)
     finally:
+        beat.idle()
         for key, v in local.items():
             # the encoder's seconds go to ``stage``; the verifying decoder's to "verify", or to
             # "verify:standalone" beside a joint encode
@@ -427,7 +436,10 @@ class _Encoders:
     candidate(s) — the standalone encode (``opts.codec``) and, where the piece has an older drive,
     the joint encode (``opts.joint_codec``) — each spooled to a temporary file."""
 
-    def __init__(self, run: _PieceRun, opts: IngestOptions, fps: float, size, clock, progress) -> None:
+    def __init__(
+        self, run: _PieceRun, opts: IngestOptions, fps: float, size, clock, progress, watch: EncoderWatch
+    ) -> None:
+        self.watch = watch
         self.jobs: dict[str, dict] = {}
         self.pipes: list[_Pipe] = []
         w, h = size
@@ -464,11 +476,11 @@ class _Encoders:
             kw = {**kw, "on_run": self.referee.hook(name)}
         pipe = _Pipe(QUEUE)
         spool = tempfile.TemporaryFile(prefix=f"egovid-{name}-")  # noqa: SIM115 - closed by close()
-        job = {"pipe": pipe, "spool": spool, "settings": settings}
+        job = {"pipe": pipe, "spool": spool, "settings": settings, "beat": Heartbeat()}
 
         def work() -> None:
             try:
-                seg = _encode_from(pipe, self.clock, stage, w, h, settings, spool=spool, **kw)
+                seg = _encode_from(pipe, self.clock, stage, self.watch, job["beat"], w, h, settings, spool=spool, **kw)
                 if pipe.ended.is_set():  # lost the early choice and ended short: nothing to keep
                     job["dropped"] = True
                 else:
@@ -484,18 +496,36 @@ class _Encoders:
         self.pipes.append(pipe)
 
     def run(self, producer: threading.Thread, clock: dict) -> dict[str, codec.EncodedSegment]:
-        """Start the producer and the encoders, wait for all; the segments by name."""
+        """Start the producer and the encoders, wait for all; the segments by name. An encoder that
+        keeps control past its watch raises :class:`EncoderStallError` (its thread is abandoned;
+        the other encoders' streams are ended and given ``stall_s`` to finish)."""
         self.clock = clock
         producer.start()
         for job in self.jobs.values():
             job["thread"].start()
+        stalled = None
         try:
-            for job in self.jobs.values():
-                job["thread"].join()
+            while stalled is None and any(job["thread"].is_alive() for job in self.jobs.values()):
+                for name, job in self.jobs.items():
+                    job["thread"].join(0.25)
+                    if job["thread"].is_alive() and job["beat"].overdue(time.monotonic()) > 0:
+                        stalled = name
+                        break
         finally:
             for p in self.pipes:
                 p.stop.set()
+                p.ended.set()
             producer.join()
+        if stalled is not None:
+            codec_name = self.jobs[stalled]["settings"].codec
+            for name, job in self.jobs.items():
+                if name != stalled:
+                    job["thread"].join(self.watch.stall_s)
+            raise EncoderStallError(
+                f"the {stalled} encoder ({codec_name}) kept control of a frame for over "
+                f"{self.watch.stall_s:.0f} s and was given up",
+                "run the ingest again; if it recurs, pass --codec vp9 or report the encoder's hang",
+            )
         for job in self.jobs.values():
             if "error" in job:
                 raise job["error"]
@@ -518,6 +548,7 @@ def encode_piece(
     done: int = 0,
     n_total: int = 0,
     clock: dict | None = None,
+    watch: EncoderWatch | None = None,
 ) -> EncodedPiece:
     """Baseline, align, encode and verify one piece, taking its frames from ``frames`` (the drive's
     one decode pass, positioned at the piece's first frame); the blob goes to ``source.blobs``.
@@ -534,7 +565,7 @@ def encode_piece(
         warm_up()  # while the first frames are decoded for the choice of the baseline
     run.choose()
     cb = (lambda k: progress("encode", done + k, n_total)) if progress else None
-    encoders = _Encoders(run, opts, fps, size, clock, cb)
+    encoders = _Encoders(run, opts, fps, size, clock, cb, watch or EncoderWatch())
     producer = threading.Thread(
         target=run.produce, args=(encoders.pipes,), name=f"egovid-piece-{piece.index}", daemon=True
     )

@@ -205,7 +205,8 @@ class PieceReport:
 @dataclass
 class IngestReport:
     """Stage *commit*: the drive as the archive now holds it, and how long each stage took
-    (``stage_seconds``, wall-clock seconds summed over the pieces)."""
+    (``stage_seconds``, wall-clock seconds summed over the pieces); ``encoder_restarts``: each
+    piece coded again after an encoder fault, and why (:mod:`egovid.dashcam.ingest.watchdog`)."""
 
     drive_id: int
     name: str
@@ -215,6 +216,7 @@ class IngestReport:
     split_paths: list[int] = field(default_factory=list)
     seconds: float = 0.0
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    encoder_restarts: list[str] = field(default_factory=list)
 
     @property
     def fps(self) -> float:

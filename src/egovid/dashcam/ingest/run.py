@@ -22,6 +22,7 @@ from egovid.core.errors import EgovidError
 from egovid.dashcam.archive.locks import ORIGIN_KEY, AreaSession, cell_keys
 from egovid.dashcam.archive.store import Archive, ArchiveSpec
 from egovid.dashcam.codec import registry
+from egovid.dashcam.codec.segment import EncoderFaultError
 from egovid.dashcam.extract import SegmentSnapshot
 from egovid.dashcam.ingest.frames import decode_once
 from egovid.dashcam.ingest.options import IngestOptions
@@ -37,6 +38,7 @@ from egovid.dashcam.ingest.stages import (
     track_xy,
     without_drive,
 )
+from egovid.dashcam.ingest.watchdog import EncoderWatch
 
 Progress = Callable[[str, int, int], None]
 
@@ -64,11 +66,21 @@ def lock_areas(archive: Archive, session: AreaSession, track: DriveTrack) -> tup
 
 
 def ingest_drive(
-    archive: Archive, inp: DriveInput, options: IngestOptions | None = None, progress: Progress | None = None
+    archive: Archive,
+    inp: DriveInput,
+    options: IngestOptions | None = None,
+    progress: Progress | None = None,
+    *,
+    watch: EncoderWatch | None = None,
 ) -> IngestReport:
     """Ingest one drive: probe -> track -> (locks) -> split -> per piece: baseline, align, encode
     -> commit. Raises :class:`EgovidError` without changing the catalogue if anything is wrong; a
-    crash leaves at most unreferenced blobs (``egovid dashcam gc``)."""
+    crash leaves at most unreferenced blobs (``egovid dashcam gc``).
+
+    ``watch``: how the encoders are watched (:class:`~egovid.dashcam.ingest.watchdog.EncoderWatch`:
+    a piece whose encoder stops responding or breaks its stream is coded again, from a fresh
+    decode, ``watch.retries`` times; then the drive is refused with an
+    :class:`~egovid.dashcam.codec.segment.EncoderFaultError`; the report lists the retries)."""
     opts = (options or IngestOptions()).check()
     t_start = time.perf_counter()
     vp = probe_stage(inp)
@@ -87,15 +99,28 @@ def ingest_drive(
         if inp.append_at is not None:  # never coded against the drive it continues
             plan = without_drive(plan, archive.catalogue.drive(inp.drive_name))
         clock["split"] = time.perf_counter() - t0
-        frames = decode_once(inp.files, *size, clock)
         refs = SegmentSnapshot(archive.blobs, plan.references)
+        watch = watch or EncoderWatch()
+        frames = decode_once(inp.files, *size, clock)
+        encoded, restarts = [], []
         try:
-            encoded = [
-                encode_piece(
-                    refs, piece, frames, track, vp.info.fps, size, opts, progress, piece.frames[0], vp.frames, clock
-                )
-                for piece in plan.pieces
-            ]
+            for piece in plan.pieces:
+                for attempt in range(watch.retries + 1):
+                    try:
+                        at = piece.frames[0]
+                        args = (refs, piece, frames, track, vp.info.fps, size, opts, progress, at, vp.frames, clock)
+                        encoded.append(encode_piece(*args, watch))
+                        break
+                    except EncoderFaultError as exc:
+                        if attempt == watch.retries:
+                            raise type(exc)(
+                                f"{exc.problem} (piece {piece.index}, {attempt + 1} tries); nothing of "
+                                f"{inp.drive_name!r} was stored",
+                                exc.fix,
+                            ) from None
+                        restarts.append(f"piece {piece.index}: {exc.problem}")
+                        frames.close()  # a fresh decode from the piece's first frame
+                        frames = decode_once(inp.files, *size, clock, start=piece.frames[0])
         finally:
             frames.close()
         t0 = time.perf_counter()
@@ -103,6 +128,7 @@ def ingest_drive(
         clock["commit"] = time.perf_counter() - t0
     report.seconds = time.perf_counter() - t_start
     report.stage_seconds = clock
+    report.encoder_restarts = restarts
     return report
 
 

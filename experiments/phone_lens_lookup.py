@@ -12,6 +12,8 @@ common calibration size and its frame rate, with no lens, stabilisation or rotat
   a file with a phone's container keys;
   the old lookups that picked a profile outside a main camera's 35 mm-equivalent focal lengths
   (:data:`~egovid.core.camera.lens_profiles.PHONE_MAIN_35MM`: an ultra wide or telephoto) are counted;
+* ``portrait 90°``: the same size turned a quarter turn with a 90° (counter-clockwise) rotation
+  flag, old (which took every portrait picture as turned 270°) against new;
 * ``gopro``: the GoPro pairs' generic lookups (must not change).
 
 Usage: ``python experiments/phone_lens_lookup.py [REV]``; prints the counts as JSON (no timing).
@@ -73,6 +75,11 @@ def main() -> None:
         counts["generic found before"] += before is not None
         counts["generic found after"] += after is not None
         counts["generic changed"] += before != after
+        # The same camera held the other way: a portrait file whose rotation flag is 90° (old: no flag known).
+        turned_before = _outcome(old.find_profile(brand, model, h, w, fps=fps))
+        turned_after = _outcome(new.find_profile(brand, model, h, w, fps=fps, rotation=90))
+        counts["portrait 90° found before"] += turned_before is not None
+        counts["portrait 90° changed"] += turned_before != turned_after
         if brand.lower() == "gopro":
             counts["gopro pairs"] += 1
             counts["gopro changed"] += before != after

@@ -14,6 +14,7 @@ from egovid.core.camera.exif import ExifTool
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.camera.lens_profiles import camera_key, find_profile, profiles_of
 from egovid.core.camera.resolve import resolve_camera
+from egovid.core.errors import EgovidError
 from egovid.core.video import probe
 from egovid.core.video.read import iter_frames
 
@@ -100,6 +101,14 @@ def test_rotation_hand_computed(rotation):
     assert (m.fx, m.fy, m.cx, m.cy) == pytest.approx(want, abs=1e-9)
     if rotation:
         assert f"turned {rotation}°" in m.reason
+
+
+def test_rotated_intrinsics_compose():
+    i = Intrinsics(192, 108, 150.0, 151.0, 90.0, 50.0, (0.1, 0.0, 0.0, 0.0))
+    assert i.rotated(90).rotated(270) == i == i.rotated(180).rotated(180) == i.rotated(90).rotated(90).rotated(180)
+    assert i.rotated(90) == Intrinsics(108, 192, 151.0, 150.0, 50.0, 101.0, i.distortion)  # (x, y) -> (y, 191 - x)
+    with pytest.raises(EgovidError, match="multiple of 90"):
+        i.rotated(45)
 
 
 @pytest.fixture(scope="module")

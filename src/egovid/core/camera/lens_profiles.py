@@ -96,6 +96,7 @@ BRAND_ALIASES = {
     "huaweitechnologies": "huawei",
     "sonymobile": "sony",
     "oneplustechnology": "oneplus",
+    "blackmagicdesign": "blackmagic",
 }
 #: Sub-brands and the maker that writes its name into their files (a Redmi phone says "Xiaomi").
 SUB_BRANDS = {"redmi": "xiaomi", "poco": "xiaomi"}

@@ -71,6 +71,7 @@ PHONE_TAGS = {
     "android": ("AndroidManufacturer", "AndroidModel", "com.android.manufacturer/model"),
     "apple": ("Make", "Model", "com.apple.quicktime.make/model"),
 }
+#: ExifTool tag names of the Apple camera's lens words (``"iPhone 13 Pro front TrueDepth camera 2.71mm f/2.2"``).
 PHONE_LENS_TAGS = ("CameraLensModel", "LensModel")
 
 #: ExifTool tag names that carry a 35 mm-equivalent focal length in millimetres.

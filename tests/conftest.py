@@ -192,6 +192,23 @@ def assert_interrupted(proc: subprocess.Popen, sig: int, code: int) -> str:
     return err
 
 
+def run_tool(args: list[str], timeout: float = 60) -> str:
+    """Run an external program (ffmpeg, exiftool) to its end in its own session and return its
+    output; past ``timeout`` seconds its process group is killed and the test fails, naming it."""
+    proc = subprocess.Popen(
+        [str(a) for a in args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+    )
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, 9)
+        proc.communicate()
+        pytest.fail(f"{args[0]} did not finish within {timeout:g} s: {' '.join(map(str, args))}")
+    assert proc.returncode == 0, f"{' '.join(map(str, args))} failed ({proc.returncode}): {out}"
+    return out
+
+
 def _spawn(args: list[str], log: Path, env: dict) -> subprocess.Popen:
     """Start a server process in its own session, its output going to ``log``; its process group
     is killed if this pytest process dies without tearing it down (_stop_if_we_die)."""

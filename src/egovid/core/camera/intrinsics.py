@@ -93,6 +93,24 @@ class Intrinsics:
         """Vertical field of view in degrees."""
         return 2.0 * math.degrees(math.atan2(self.height / 2.0, self.fy))
 
+    def rotated(self, rotation: int) -> Intrinsics:
+        """The intrinsics of this picture turned ``rotation`` degrees counter-clockwise (0, 90,
+        180, 270; as the decoder turns a frame by its display rotation flag,
+        :func:`egovid.core.video.orientation.to_display`): a pixel (x, y) of the ``W`` x ``H``
+        picture goes to (y, W-1-x) at 90°, (W-1-x, H-1-y) at 180°, (H-1-y, x) at 270°. The
+        fisheye distortion is radial, the same after a quarter turn."""
+        k = (int(rotation) // 90) % 4
+        if int(rotation) % 90:
+            raise EgovidError(f"rotation {rotation}° is not a multiple of 90", "use 0, 90, 180 or 270")
+        w, h, d = self.width, self.height, self.distortion
+        if k == 1:
+            return Intrinsics(h, w, self.fy, self.fx, self.cy, (w - 1) - self.cx, d)
+        if k == 2:
+            return Intrinsics(w, h, self.fx, self.fy, (w - 1) - self.cx, (h - 1) - self.cy, d)
+        if k == 3:
+            return Intrinsics(h, w, self.fy, self.fx, (h - 1) - self.cy, self.cx, d)
+        return self
+
     def scaled(self, factor: float) -> Intrinsics:
         """Intrinsics of the same camera after resizing the image by ``factor``."""
         w = max(1, round(self.width * factor))

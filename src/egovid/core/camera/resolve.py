@@ -8,7 +8,11 @@ JSON says which, and why, under ``intrinsics.source``/``detail``):
    telemetry-parser or ExifTool; ``35mm-equivalent``);
 3. the calibrated lens profile of the camera (Gyroflow's database,
    :mod:`egovid.core.camera.lens_profiles`): camera model, lens mode, stabilisation setting and
-   resolution from the file, with the lens's fisheye distortion (``lens-profile``);
+   resolution from the file, with the lens's fisheye distortion (``lens-profile``); a phone is
+   known by its container's own keys (:func:`phone_camera`: Android's ``com.android.manufacturer``
+   / ``com.android.model``, Apple's ``com.apple.quicktime.make`` / ``.model``), and its main
+   camera is taken unless the file names another (Apple's ``com.apple.quicktime.camera.lens_model``);
+   the profile is turned by the container's rotation flag as the decoder turns the frames;
 4. (in :mod:`egovid.core.motion.source`, when a gyro is recorded) the focal length fitted from the
    gyro against the video (``gyro-fit``), which refines only what follows;
 5. the lens mode the camera recorded (GoPro ``VFOV``: Wide, Medium, Narrow, SuperView, Linear),
@@ -57,6 +61,18 @@ GOPRO_LENS_HFOV: dict[str, tuple[float, bool]] = {
 #: Diagonal of a 35 mm film frame in millimetres (36 x 24 mm), the reference of 35 mm-equivalent
 #: focal lengths.
 FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)
+
+#: ExifTool tag names of a phone's make and model in its container's own keys, with the keys
+#: they come from: Android's MediaRecorder writes ``com.android.manufacturer``/``.model``
+#: (ExifTool: ``AndroidManufacturer``/``AndroidModel``), Apple's camera
+#: ``com.apple.quicktime.make``/``.model`` (ExifTool: ``Make``/``Model``, which only Apple's keys
+#: make a phone's) and ``com.apple.quicktime.camera.lens_model`` (``CameraLensModel``).
+PHONE_TAGS = {
+    "android": ("AndroidManufacturer", "AndroidModel", "com.android.manufacturer/model"),
+    "apple": ("Make", "Model", "com.apple.quicktime.make/model"),
+}
+#: ExifTool tag names of the Apple camera's lens words (``"iPhone 13 Pro front TrueDepth camera 2.71mm f/2.2"``).
+PHONE_LENS_TAGS = ("CameraLensModel", "LensModel")
 
 #: ExifTool tag names that carry a 35 mm-equivalent focal length in millimetres.
 FOCAL_35MM_TAGS = ("FocalLengthIn35mmFormat", "CameraFocalLength35mmEquivalent", "FocalLength35mm", "FocalLength35efl")
@@ -163,12 +179,12 @@ def resolve_camera(
     readout = getattr(telemetry, "readout_ms", None)
     readout_from = "the file (GoPro SROT)" if readout else ""
     f35 = getattr(telemetry, "zoom_35mm", None)
+    if tags is None and (f35 is None or not getattr(telemetry, "make", None)):
+        try:
+            tags = read_tags(video)
+        except EgovidError:
+            tags = {}
     if f35 is None:
-        if tags is None:
-            try:
-                tags = read_tags(video)
-            except EgovidError:
-                tags = {}
         f35 = _positive(find_tag(tags, FOCAL_35MM_TAGS))
     if f35 is not None:
         f = f35 * math.hypot(w, h) / FILM_DIAGONAL_MM
@@ -177,16 +193,24 @@ def resolve_camera(
                 Intrinsics.from_focal(w, h, f), "35mm-equivalent", f"{f35:g} mm (35 mm equivalent)", rot,
                 readout, readout_from,
             )  # fmt: skip
-    looked = find_profile(
-        getattr(telemetry, "make", None), _model_of(telemetry), w, h, lens=None if assumed else mode,
-        stabilized=getattr(telemetry, "electronically_stabilized", None), fps=info.fps,
-    )  # fmt: skip
+    phone = None if getattr(telemetry, "make", None) else phone_camera(tags or {})
+    if phone is not None:
+        make, model, lens, origin = phone
+        looked = find_profile(make, model, w, h, lens=lens, fps=info.fps, phone=True, rotation=rot)
+        camera = f"{make} {model} (the file's {origin})"
+    else:
+        looked = find_profile(
+            getattr(telemetry, "make", None), _model_of(telemetry), w, h, lens=None if assumed else mode,
+            stabilized=getattr(telemetry, "electronically_stabilized", None), fps=info.fps, rotation=rot,
+        )  # fmt: skip
     if looked.match is not None:
         m = looked.match
         if readout is None and m.readout_ms:
             readout, readout_from = m.readout_ms, "the lens profile"
         intr = Intrinsics(w, h, m.fx, m.fy, m.cx, m.cy, m.distortion)
-        return CameraModel(intr, "lens-profile", looked.reason, rot, readout, readout_from, m.to_dict())
+        detail = looked.reason if phone is None else f"{camera}: {looked.reason}"
+        about = m.to_dict() if phone is None else {**m.to_dict(), "camera": camera}
+        return CameraModel(intr, "lens-profile", detail, rot, readout, readout_from, about)
     if found is not None:
         f, how, fisheye = found
         name = "Wide (assumed: the file records no lens mode)" if assumed else telemetry.lens_name or mode
@@ -195,9 +219,23 @@ def resolve_camera(
         return CameraModel(intr, "lens-mode", detail, rot, readout, readout_from)
     return CameraModel(
         Intrinsics.default(w, h), "default",
-        f"{DEFAULT_FOCAL_AT_1080P:g} px at 1920 px, scaled to the long side; no lens profile: {looked.reason}",
+        f"{DEFAULT_FOCAL_AT_1080P:g} px at 1920 px, scaled to the long side; no lens profile: {looked.reason}"
+        + (f" ({camera})" if phone is not None else ""),
         rot, readout, readout_from,
     )  # fmt: skip
+
+
+def phone_camera(tags: dict) -> tuple[str, str, str | None, str] | None:
+    """The phone that recorded a file, from its container's own keys in ExifTool ``tags``
+    (:data:`PHONE_TAGS`): ``(make, model, lens words or None, which keys)``; None when the file
+    carries no phone's keys (a ``Make`` that is not Apple's is no phone's: cameras write it too)."""
+    for kind, (make_tag, model_tag, origin) in PHONE_TAGS.items():
+        make, model = find_tag(tags, [make_tag]), find_tag(tags, [model_tag])
+        if not make or not model or (kind == "apple" and str(make).strip().lower() != "apple"):
+            continue
+        lens = find_tag(tags, PHONE_LENS_TAGS) if kind == "apple" else None
+        return str(make).strip(), str(model).strip(), str(lens).strip() if lens else None, origin
+    return None
 
 
 def _model_of(telemetry) -> str | None:

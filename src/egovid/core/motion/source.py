@@ -198,7 +198,8 @@ class MotionSource:
 
 
 def _camera_name(telemetry: CameraTelemetry) -> str:
-    return " ".join(x for x in (telemetry.make, telemetry.model) if x) or "the camera"
+    make = None if telemetry.make == "CAMM" else telemetry.make  # telemetry-parser's name of the format
+    return " ".join(x for x in (make, telemetry.model) if x) or "the camera"
 
 
 def _eis_note(telemetry: CameraTelemetry) -> str:
@@ -244,8 +245,15 @@ def _solve_sensor(run: _Run) -> tuple[Trajectory, np.ndarray]:
     return Trajectory(times, Rg), _coverage(run.track, run.sync, times)
 
 
+def _gyro_words(telemetry: CameraTelemetry) -> str:
+    """``"400 Hz"``, or ``"200 Hz, in its CAMM track (camm handler)"`` where the gyro is not the
+    one telemetry-parser reads."""
+    src = telemetry.imu_source or ""
+    return f"{telemetry.imu.rate_hz:.0f} Hz" + (f", in its {src}" if src.startswith("CAMM") else "")
+
+
 def _asked_gyro(telemetry: CameraTelemetry) -> str:
-    return f"asked for ({_camera_name(telemetry)} gyro, {telemetry.imu.rate_hz:.0f} Hz)" + _eis_note(telemetry)
+    return f"asked for ({_camera_name(telemetry)} gyro, {_gyro_words(telemetry)})" + _eis_note(telemetry)
 
 
 #: The motion sources by name, in the order ``--source`` lists them.
@@ -301,7 +309,7 @@ def _auto_source(telemetry: CameraTelemetry) -> tuple[str, str]:
         if telemetry.electronically_stabilized is False
         else "does not say it stabilised the picture"
     )
-    return "gyro", f"{name} records a gyro ({telemetry.imu.rate_hz:.0f} Hz) and {said}"
+    return "gyro", f"{name} records a gyro ({_gyro_words(telemetry)}) and {said}"
 
 
 def camera_motion(

@@ -16,14 +16,18 @@ import numpy as np
 import pytest
 
 from egovid.core.camera import camm
+from egovid.core.camera.gpmf import gpmd_payloads
+from egovid.core.camera.resolve import resolve_camera
 from egovid.core.camera.telemetry import read_camera_telemetry
 from egovid.core.motion import source as source_mod
 from egovid.core.trajectory import read_motion_csv
-from egovid.core.video.isobmff import read_tracks
+from egovid.core.video.isobmff import read_tracks, sample_bytes
 from egovid.fpv.stabilize.run import gravity_down
 from egovid.synth import motions
 from egovid.synth.camm import add_camm_track, camm_record, imu_for_motion, write_camm_imu
 from egovid.synth.fpv import render_fpv
+
+from conftest import real_clip
 
 FPS = 30.0
 
@@ -109,6 +113,8 @@ def test_telemetry_takes_every_record_where_telemetry_parser_reads_half_or_none(
     assert tel.readout_ms == 21.5 and "CAMM" in tel.readout_source
     assert tel.has_gyro and source_mod.choose_source("auto", tel)[0] == "gyro"
     assert "CAMM track" in source_mod.choose_source("auto", tel)[1]
+    cam = resolve_camera(path, telemetry=tel)  # the rolling-shutter correction's readout
+    assert cam.readout_ms == 21.5 and cam.readout_source == "the file (CAMM rolling-shutter skew)"
 
 
 def test_sample_table_and_edit_list_of_the_video_track(hand_built):
@@ -125,6 +131,29 @@ def test_sample_table_and_edit_list_of_the_video_track(hand_built):
         assert video.first_presentation_s() == pytest.approx(float(s.start_time * s.time_base), abs=1e-9)
         assert len(video) == s.frames == 30
     assert camm.read_camm(__file__) is None  # not an MP4
+
+
+@pytest.mark.parametrize("name", ["gopro-hero5-karma.mp4", "gopro-hero6-2s.mp4"])
+def test_sample_tables_of_real_gopro_files_agree_with_ffmpeg(name):
+    """The sample-table reader against FFmpeg's demuxer on the real GoPro files (several tracks,
+    edit lists, a 90 kHz video clock): every track's sample count, and the GPMF track's samples
+    byte for byte at the same times. Neither file has a CAMM track."""
+    import av
+
+    path = real_clip(name)
+    tracks, data = read_tracks(path)
+    try:
+        with av.open(str(path)) as c:
+            assert [len(t) for t in tracks] == [s.frames for s in c.streams]
+        gpmd = next(t for t in tracks if t.sample_entry == "gpmd")
+        video = next(t for t in tracks if t.handler == "vide")
+        payloads = gpmd_payloads(path)
+        assert [sample_bytes(data, gpmd, i) for i in range(len(gpmd))] == [p[2] for p in payloads]
+        t, kept = gpmd.presentation_times()
+        assert kept.all() and np.allclose(t - video.first_presentation_s(), [p[0] for p in payloads], atol=1e-9)
+    finally:
+        data.close()
+    assert camm.read_camm(path) is None
 
 
 def test_parse_sample_edges():

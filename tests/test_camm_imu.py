@@ -156,6 +156,22 @@ def test_sample_tables_of_real_gopro_files_agree_with_ffmpeg(name):
     assert camm.read_camm(path) is None
 
 
+def test_samples_of_one_size_with_other_records_are_read_one_by_one():
+    """Samples decoded together must hold the same records as the first of their size: one that
+    packs the same sizes in another order is read on its own, with the same values."""
+    g = [camm_record(camm.GYRO, k, 2 * k, 3 * k) for k in range(3)]
+    a = [camm_record(camm.ACCEL, -k, 0.5, 9.75) for k in range(3)]
+    samples = [g[0] + a[0], a[1] + g[1], g[2] + a[2]]
+    buf = np.frombuffer(b"".join(samples), np.uint8)
+    streams, total, notes = camm.decode_samples(
+        buf, np.array([0, 32, 64]), np.array([32, 32, 32]), np.array([0.0, 0.1, 0.2]), np.full(3, 0.1)
+    )
+    assert total == 6 and notes == []
+    assert np.array_equal(streams[camm.GYRO].values, [[0, 0, 0], [1, 2, 3], [2, 4, 6]])
+    assert np.array_equal(streams[camm.ACCEL].values, [[0, 0.5, 9.75], [-1, 0.5, 9.75], [-2, 0.5, 9.75]])
+    assert np.allclose(streams[camm.ACCEL].times, [0.0, 0.1, 0.2])
+
+
 def test_parse_sample_edges():
     recs, left = camm.parse_sample(camm_record(camm.GYRO, 1, 2, 3) + camm_record(camm.ACCEL, 4, 5, 6)[:10])
     assert recs == [(camm.GYRO, (1.0, 2.0, 3.0))] and left == 10  # a cut record is not read

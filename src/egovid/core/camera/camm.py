@@ -48,6 +48,7 @@ handler track and only the first record of each ``meta`` sample).
 from __future__ import annotations
 
 import os
+import re
 import struct
 from dataclasses import dataclass, field
 
@@ -174,31 +175,79 @@ def is_camm(track: Track) -> bool:
     return track.handler == "camm" or track.sample_entry == "camm"
 
 
-def records_from_samples(samples: list[tuple[float, float, bytes]]) -> tuple[dict[int, CammStream], int, list[str]]:
-    """The records of samples ``(time s, duration s, bytes)`` by type, timed as the module says;
-    also the number of records and notes on samples not read in full."""
-    times: dict[int, list[float]] = {}
-    values: dict[int, list[tuple]] = {}
-    notes: list[str] = []
-    total = 0
-    for k, (t, dur, data) in enumerate(samples):
-        recs, left = parse_sample(data)
-        if left:
-            notes.append(f"sample {k}: {left} bytes not read (unknown record type or cut record)")
-        counts: dict[int, int] = {}
+def _dtype(kind: int) -> np.dtype:
+    """The numpy record type of a payload of ``kind`` (from :data:`RECORD_FORMATS`)."""
+    chars = re.sub(r"(\d+)(\w)", lambda m: m.group(2) * int(m.group(1)), RECORD_FORMATS[kind][1:])
+    return np.dtype([(f"v{k}", {"f": "<f4", "d": "<f8", "i": "<i4"}[c]) for k, c in enumerate(chars)])
+
+
+_DTYPES = {k: _dtype(k) for k in RECORD_FORMATS}
+
+
+def decode_samples(
+    buf: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, times: np.ndarray, durations: np.ndarray
+) -> tuple[dict[int, CammStream], int, list[str]]:
+    """The records of the samples at ``offsets`` (``sizes`` bytes) of ``buf`` (the file as uint8)
+    presented at ``times`` for ``durations`` (s), by type, in file order, timed as the module
+    says; also the number of records and notes on samples not read in full.
+
+    Samples of one size that hold the same records as the first of them (a camera writes the same
+    packing throughout) are decoded together as numpy records; the others one by one
+    (:func:`parse_sample`: the one reading of the layout either way)."""
+    parts: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}  # kind: (key, times, values)
+
+    def add(kind: int, key: np.ndarray, t: np.ndarray, v: np.ndarray) -> None:
+        parts.setdefault(kind, []).append((key, t, v))
+
+    total, slow = 0, []
+    for size in np.unique(sizes):
+        idx = np.flatnonzero(sizes == size)
+        o = int(offsets[idx[0]])
+        recs, left = parse_sample(bytes(buf[o : o + size]))
+        layout, p = [], 0
         for kind, _ in recs:
-            counts[kind] = counts.get(kind, 0) + 1
+            layout.append((p, kind))
+            p += 4 + _STRUCTS[kind].size
+        if left or not recs or p != size:
+            slow.extend(idx.tolist())
+            continue
+        rows = buf[offsets[idx][:, None] + np.arange(size)]
+        same = np.ones(len(idx), bool)
+        for p, kind in layout:
+            same &= (rows[:, p + 2].astype(np.int64) | rows[:, p + 3].astype(np.int64) << 8) == kind
+        slow.extend(idx[~same].tolist())
+        idx, rows = idx[same], rows[same]
+        counts = {kind: sum(1 for _, k in layout if k == kind) for _, kind in layout}
         seen: dict[int, int] = {}
-        for kind, v in recs:
+        for j, (p, kind) in enumerate(layout):
             i = seen.get(kind, 0)
             seen[kind] = i + 1
-            times.setdefault(kind, []).append(t + i * dur / counts[kind])
-            values.setdefault(kind, []).append(v)
+            dt = _DTYPES[kind]
+            rec = np.ascontiguousarray(rows[:, p + 4 : p + 4 + dt.itemsize]).view(dt).reshape(-1)
+            vals = np.column_stack([rec[name].astype(float) for name in dt.names])
+            add(kind, idx * 4096 + j, times[idx] + i * durations[idx] / counts[kind], vals)
+        total += len(idx) * len(layout)
+    notes: list[str] = []
+    for k in sorted(slow):
+        o = int(offsets[k])
+        recs, left = parse_sample(bytes(buf[o : o + int(sizes[k])]))
+        if left:
+            notes.append(f"sample {k}: {left} bytes not read (unknown record type or cut record)")
+        counts = {}
+        for kind, _ in recs:
+            counts[kind] = counts.get(kind, 0) + 1
+        seen = {}
+        for j, (kind, v) in enumerate(recs):
+            i = seen.get(kind, 0)
+            seen[kind] = i + 1
+            t = times[k] + i * durations[k] / counts[kind]
+            add(kind, np.array([k * 4096 + j]), np.array([t]), np.asarray(v, float)[None])
         total += len(recs)
-    streams = {
-        kind: CammStream(np.asarray(times[kind], float), np.asarray(values[kind], float).reshape(len(values[kind]), -1))
-        for kind in sorted(times)
-    }
+    streams = {}
+    for kind in sorted(parts):
+        key, t, v = (np.concatenate([x[c] for x in parts[kind]]) for c in range(3))
+        order = np.argsort(key, kind="stable")
+        streams[kind] = CammStream(t[order].astype(float), v[order])
     return streams, total, notes[:20]
 
 
@@ -215,19 +264,19 @@ def read_camm(path: str | os.PathLike) -> Camm | None:
         video = next((t for t in tracks if t.handler == "vide"), None)
         t0 = video.first_presentation_s() if video is not None else 0.0
         t, kept = track.presentation_times()
-        dur = track.durations / track.timescale
-        end = len(data)
-        samples = []
-        cut = 0
-        for i in np.flatnonzero(kept):
-            o, s = int(track.offsets[i]), int(track.sizes[i])
-            if o + s > end:
-                cut += 1
-                continue
-            samples.append((float(t[i]) - t0, float(dur[i]), data[o : o + s]))
-        streams, total, notes = records_from_samples(samples)
+        inside = kept & (track.offsets + track.sizes <= len(data))
+        buf = np.frombuffer(data, np.uint8)
+        try:
+            streams, total, notes = decode_samples(
+                buf, track.offsets[inside], track.sizes[inside], t[inside] - t0,
+                track.durations[inside] / track.timescale,
+            )  # fmt: skip
+        finally:
+            del buf  # no view of the map may outlive it
     finally:
         data.close()
+    cut = int((kept & ~inside).sum())
     if cut:
         notes.append(f"{cut} samples lie past the end of the file (cut)")
-    return Camm(streams, track.track_id, track.handler, len(samples), total, notes)
+    n = int(inside.sum())
+    return Camm(streams, track.track_id, track.handler, n, total, notes)

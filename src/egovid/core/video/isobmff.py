@@ -23,6 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+#: Box types an ISO-BMFF file starts with (QuickTime files may start with ``wide``, ``mdat``, ...).
+_FIRST_BOXES = {"ftyp", "moov", "mdat", "free", "skip", "wide", "pnot", "uuid", "styp"}
+
 
 def box_header(data, pos: int, end: int) -> tuple[str, int, int] | None:
     """The box at ``pos`` of ``data`` (bytes or mmap) that ends by ``end``: ``(type, header
@@ -239,6 +242,10 @@ def read_tracks(path: str | os.PathLike) -> tuple[list[Track], mmap.mmap | None]
     except OSError:
         return [], None
     try:
+        first = box_header(data, 0, len(data))
+        if first is None or first[0] not in _FIRST_BOXES:  # not ISO-BMFF (MKV, AVI, ...): not walked
+            data.close()
+            return [], None
         moov = _child(data, 0, len(data), "moov")
         if moov is None:
             data.close()

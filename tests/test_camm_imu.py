@@ -205,6 +205,7 @@ def test_auto_source_syncs_the_camm_gyro_to_the_picture(camm_clip):
     assert len(tel.imu) == len(truth.times) and len(tel.imu.accel) == len(truth.times)
     cm = source_mod.camera_motion(clip, "auto")
     assert cm.source == "gyro" and "CAMM track (camm handler)" in cm.reason, cm.reason
+    assert cm.to_dict()["camera"]["gyro_from"] == "CAMM track (camm handler)"
     s = cm.sync
     assert s.offset_s == pytest.approx(truth.offset_s, abs=0.003)
     assert np.array_equal(s.axes, np.eye(3))  # CAMM's camera axes are egovid's

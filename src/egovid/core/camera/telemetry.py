@@ -47,6 +47,9 @@ GOPRO_LENS_MODES = {
     "R": "Linear + Horizon Levelling",
 }
 
+#: telemetry-parser's camera name for a file it read as CAMM (the format, not a make).
+CAMM_FORMAT_NAME = "CAMM"
+
 #: EIS states that mean "the camera did not stabilise the picture".
 _EIS_OFF = {"", "N", "NO", "OFF", "N/A", "NA", "0", "FALSE", "NONE"}
 
@@ -310,7 +313,7 @@ def _with_camm(p: Path, tel: CameraTelemetry) -> CameraTelemetry:
     camm = read_camm(p)
     if camm is None:
         return tel
-    same = (tel.make or "").upper() == "CAMM"  # telemetry-parser's own (partial) reading of this track
+    same = tel.make == CAMM_FORMAT_NAME  # telemetry-parser's own (partial) reading of this track
     changes: dict[str, Any] = {}
     imu = camm.imu()
     if imu is not None and (tel.imu is None or same):

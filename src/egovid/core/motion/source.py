@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from egovid.core.camera.resolve import CameraModel, resolve_camera
-from egovid.core.camera.telemetry import CameraTelemetry, read_camera_telemetry
+from egovid.core.camera.telemetry import CAMM_FORMAT_NAME, CameraTelemetry, read_camera_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.motion import eis
 from egovid.core.motion import gyro as gyro_mod
@@ -124,6 +124,7 @@ class CameraMotion:
                 "electronic_stabilization": tel.stabilization,
                 "gyro_samples": len(tel.imu) if tel.imu is not None else 0,
                 "gyro_rate_hz": round(tel.imu.rate_hz, 2) if tel.imu is not None else None,
+                "gyro_from": tel.imu_source,
             },
             "frames_bridged": int(np.sum(self.confidence < CONF_MEASURED)),
             "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
@@ -198,7 +199,7 @@ class MotionSource:
 
 
 def _camera_name(telemetry: CameraTelemetry) -> str:
-    make = None if telemetry.make == "CAMM" else telemetry.make  # telemetry-parser's name of the format
+    make = None if telemetry.make == CAMM_FORMAT_NAME else telemetry.make
     return " ".join(x for x in (make, telemetry.model) if x) or "the camera"
 
 

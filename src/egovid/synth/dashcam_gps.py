@@ -46,6 +46,8 @@ from pathlib import Path
 
 import numpy as np
 
+from egovid.core.camera.camm import GPS, GPS_MIN
+from egovid.synth.camm import camm_record
 from egovid.synth.gopro import _path
 from egovid.synth.mp4box import add_boxes, add_to_mdat, box, set_handler
 
@@ -196,12 +198,12 @@ def garmin_pndm(mph: int, lat_semi: int, lon_semi: int) -> bytes:
 # -- CAMM ----------------------------------------------------------------------------------------
 def camm6(t: float, fix: int, lat: float, lon: float, alt: float, v_east: float, v_north: float) -> bytes:
     """A CAMM type 6 record (60 bytes, little-endian)."""
-    return struct.pack("<HHdidd7f", 0, 6, t, fix, lat, lon, alt, 2.5, 4.0, v_east, v_north, 0.0, 0.3)
+    return camm_record(GPS, t, fix, lat, lon, alt, 2.5, 4.0, v_east, v_north, 0.0, 0.3)
 
 
 def camm5(lat: float, lon: float, alt: float) -> bytes:
     """A CAMM type 5 record (28 bytes, little-endian)."""
-    return struct.pack("<HHddd", 0, 5, lat, lon, alt)
+    return camm_record(GPS_MIN, lat, lon, alt)
 
 
 # -- the file ----------------------------------------------------------------------------------

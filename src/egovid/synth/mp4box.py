@@ -13,6 +13,8 @@ import os
 import struct
 from pathlib import Path
 
+from egovid.core.video.isobmff import box_header
+
 
 def box(kind: str, payload: bytes) -> bytes:
     """One box of type ``kind`` (four ASCII characters, ``"gps "``) around ``payload``."""
@@ -22,17 +24,15 @@ def box(kind: str, payload: bytes) -> bytes:
 
 
 def top_level(data: bytes) -> list[tuple[str, int, int]]:
-    """The top-level boxes of ``data`` as ``(type, offset, size)`` in bytes (64-bit sizes read)."""
+    """The top-level boxes of ``data`` as ``(type, offset, size)`` in bytes (64-bit sizes read,
+    by :func:`egovid.core.video.isobmff.box_header`); ``ValueError`` at an unreadable header."""
     out, pos = [], 0
     while pos + 8 <= len(data):
-        size, kind = struct.unpack(">I4s", data[pos : pos + 8])
-        if size == 1:
-            size = struct.unpack(">Q", data[pos + 8 : pos + 16])[0]
-        elif size == 0:
-            size = len(data) - pos
-        if size < 8:
-            raise ValueError(f"bad box size {size} at {pos}")
-        out.append((kind.decode("latin-1"), pos, size))
+        h = box_header(data, pos, len(data))
+        if h is None:
+            raise ValueError(f"bad box size at {pos}")
+        kind, _, size = h
+        out.append((kind, pos, size))
         pos += size
     return out
 

@@ -177,7 +177,7 @@ def resolve_camera(
         return CameraModel(intr, "flag", what, rot)
     camera = " ".join(x for x in (getattr(telemetry, "make", None), getattr(telemetry, "model", None)) if x)
     readout = getattr(telemetry, "readout_ms", None)
-    readout_from = "the file (GoPro SROT)" if readout else ""
+    readout_from = (getattr(telemetry, "readout_source", None) or "the file") if readout else ""
     f35 = getattr(telemetry, "zoom_35mm", None)
     if tags is None and (f35 is None or not getattr(telemetry, "make", None)):
         try:

@@ -13,6 +13,13 @@ CAMM and several phone-logger formats; dashcams are read through ExifTool instea
 * the lens mode (GoPro ``VFOV``: W, M, N, S, L, ...), the electronic-stabilisation state (GoPro
   ``EISE``/``EISA``: HyperSmooth), the rolling-shutter readout time, make and model.
 
+A CAMM track (Google's Camera Motion Metadata: Insta360, Street View apps) is read natively by
+:mod:`egovid.core.camera.camm`, since telemetry-parser 0.3 reads nothing from a ``camm`` handler
+track and only the first record of each ``meta`` sample: what the camera's own telemetry gives
+comes first, CAMM fills in the gyro, accelerometer, readout time and orientation it lacks, and
+replaces telemetry-parser's own reading of the same CAMM track (its camera ``"CAMM"``).
+``imu_source`` and ``readout_source`` say which was used.
+
 Everything is ``None`` (or empty) where the file has none; a file without any telemetry gives a
 :class:`CameraTelemetry` with ``make is None``.
 """
@@ -40,6 +47,9 @@ GOPRO_LENS_MODES = {
     "R": "Linear + Horizon Levelling",
 }
 
+#: telemetry-parser's camera name for a file it read as CAMM (the format, not a make).
+CAMM_FORMAT_NAME = "CAMM"
+
 #: EIS states that mean "the camera did not stabilise the picture".
 _EIS_OFF = {"", "N", "NO", "OFF", "N/A", "NA", "0", "FALSE", "NONE"}
 
@@ -50,7 +60,8 @@ class ImuSamples:
 
     ``times`` (N,) seconds on the video clock (telemetry-parser's, before any sync);
     ``gyro`` (N, 3) angular rate in radians per second; ``accel`` (M, 3) m/s² at ``accel_times``
-    (M,) seconds, or ``None``. Axes are telemetry-parser's normalised IMU axes.
+    (M,) seconds, or ``None``. Axes are telemetry-parser's normalised IMU axes (a CAMM track's
+    are the camera's, :mod:`egovid.core.camera.camm`); the sync maps them to the camera's.
     """
 
     times: np.ndarray
@@ -88,7 +99,8 @@ class CameraTelemetry:
     ``"HS High"``); ``readout_ms`` the rolling-shutter readout time of one frame in
     milliseconds; ``zoom_35mm`` a 35 mm-equivalent focal length in millimetres where the camera
     records one (Sony). ``image_orientation`` is the orientation of the picture (GoPro: camera
-    orientation times image orientation), ``camera_orientation`` the body's.
+    orientation times image orientation), ``camera_orientation`` the body's. ``imu_source`` and
+    ``readout_source`` say where the IMU and the readout time came from (``None`` without them).
     """
 
     make: str | None = None
@@ -101,6 +113,8 @@ class CameraTelemetry:
     readout_ms: float | None = None
     zoom_35mm: float | None = None
     tags: dict[str, Any] = field(default_factory=dict, repr=False)
+    imu_source: str | None = None
+    readout_source: str | None = None
 
     @property
     def has_gyro(self) -> bool:
@@ -234,13 +248,19 @@ def _imu(samples: list[dict]) -> ImuSamples | None:
 
 
 def read_camera_telemetry(path: str | os.PathLike) -> CameraTelemetry:
-    """Telemetry of ``path``; an empty :class:`CameraTelemetry` when the file has none.
+    """Telemetry of ``path`` (telemetry-parser's reading, then the file's CAMM track: see the
+    module docstring); an empty :class:`CameraTelemetry` when the file has none.
 
     Raises :class:`EgovidError` only when the file does not exist or cannot be read at all.
     """
     p = Path(path)
     if not p.is_file():
         raise EgovidError(f"file not found: {p}", "check the path")
+    return _with_camm(p, _parsed_telemetry(p))
+
+
+def _parsed_telemetry(p: Path) -> CameraTelemetry:
+    """What telemetry-parser reads from ``p``."""
     import telemetry_parser
 
     try:
@@ -265,20 +285,46 @@ def read_camera_telemetry(path: str | os.PathLike) -> CameraTelemetry:
     picture = _quaternion_samples(blocks, "Quaternion")
     lens = _first(tags, "VFOV", "ZFOV")
     eis = _first(tags, "EISA", "EISE")
-    readout = _first(tags, "SROT")
+    readout = _float_or_none(_first(tags, "SROT"))
     zoom = _first(tags, "LensZoom35mm", "Focal length (35mm)")
+    make = parser.camera or None
     return CameraTelemetry(
-        make=parser.camera or None,
+        make=make,
         model=parser.model or None,
         imu=imu,
         camera_orientation=_raw_quaternions(blocks, "CameraOrientation", picture),
         image_orientation=picture,
         lens_mode=str(lens) if lens is not None else None,
         stabilization=str(eis) if eis is not None else None,
-        readout_ms=_float_or_none(readout),
+        readout_ms=readout,
         zoom_35mm=_float_or_none(zoom),
         tags=tags,
+        imu_source=f"{make or 'camera'} telemetry (telemetry-parser)" if imu is not None else None,
+        readout_source="the file (GoPro SROT)" if readout is not None else None,
     )
+
+
+def _with_camm(p: Path, tel: CameraTelemetry) -> CameraTelemetry:
+    """``tel`` with what the file's CAMM track adds (see the module docstring)."""
+    from dataclasses import replace
+
+    from egovid.core.camera.camm import read_camm
+
+    camm = read_camm(p)
+    if camm is None:
+        return tel
+    same = tel.make == CAMM_FORMAT_NAME  # telemetry-parser's own (partial) reading of this track
+    changes: dict[str, Any] = {}
+    imu = camm.imu()
+    if imu is not None and (tel.imu is None or same):
+        changes.update(imu=imu, imu_source=f"CAMM track ({camm.handler} handler)")
+    readout = camm.readout_ms()
+    if readout is not None and (tel.readout_ms is None or same):
+        changes.update(readout_ms=readout, readout_source="the file (CAMM rolling-shutter skew)")
+    orientation = camm.orientation()
+    if orientation is not None and (tel.camera_orientation is None or same):
+        changes.update(camera_orientation=orientation)
+    return replace(tel, **changes) if changes else tel
 
 
 def _float_or_none(value: Any) -> float | None:

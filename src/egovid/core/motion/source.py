@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from egovid.core.camera.resolve import CameraModel, resolve_camera
-from egovid.core.camera.telemetry import CameraTelemetry, read_camera_telemetry
+from egovid.core.camera.telemetry import CAMM_FORMAT_NAME, CameraTelemetry, read_camera_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.motion import eis
 from egovid.core.motion import gyro as gyro_mod
@@ -124,6 +124,7 @@ class CameraMotion:
                 "electronic_stabilization": tel.stabilization,
                 "gyro_samples": len(tel.imu) if tel.imu is not None else 0,
                 "gyro_rate_hz": round(tel.imu.rate_hz, 2) if tel.imu is not None else None,
+                "gyro_from": tel.imu_source,
             },
             "frames_bridged": int(np.sum(self.confidence < CONF_MEASURED)),
             "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
@@ -198,7 +199,8 @@ class MotionSource:
 
 
 def _camera_name(telemetry: CameraTelemetry) -> str:
-    return " ".join(x for x in (telemetry.make, telemetry.model) if x) or "the camera"
+    make = None if telemetry.make == CAMM_FORMAT_NAME else telemetry.make
+    return " ".join(x for x in (make, telemetry.model) if x) or "the camera"
 
 
 def _eis_note(telemetry: CameraTelemetry) -> str:
@@ -244,8 +246,15 @@ def _solve_sensor(run: _Run) -> tuple[Trajectory, np.ndarray]:
     return Trajectory(times, Rg), _coverage(run.track, run.sync, times)
 
 
+def _gyro_words(telemetry: CameraTelemetry) -> str:
+    """``"400 Hz"``, or ``"200 Hz, in its CAMM track (camm handler)"`` where the gyro is not the
+    one telemetry-parser reads."""
+    src = telemetry.imu_source or ""
+    return f"{telemetry.imu.rate_hz:.0f} Hz" + (f", in its {src}" if src.startswith("CAMM") else "")
+
+
 def _asked_gyro(telemetry: CameraTelemetry) -> str:
-    return f"asked for ({_camera_name(telemetry)} gyro, {telemetry.imu.rate_hz:.0f} Hz)" + _eis_note(telemetry)
+    return f"asked for ({_camera_name(telemetry)} gyro, {_gyro_words(telemetry)})" + _eis_note(telemetry)
 
 
 #: The motion sources by name, in the order ``--source`` lists them.
@@ -301,7 +310,7 @@ def _auto_source(telemetry: CameraTelemetry) -> tuple[str, str]:
         if telemetry.electronically_stabilized is False
         else "does not say it stabilised the picture"
     )
-    return "gyro", f"{name} records a gyro ({telemetry.imu.rate_hz:.0f} Hz) and {said}"
+    return "gyro", f"{name} records a gyro ({_gyro_words(telemetry)}) and {said}"
 
 
 def camera_motion(

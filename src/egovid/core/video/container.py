@@ -4,12 +4,14 @@ files a caller accepted (:func:`egovid.core.video.probe` with ``allow_truncated`
 
 from __future__ import annotations
 
+import mmap
 import os
 from pathlib import Path
 
 import av
 
 from egovid.core.errors import EgovidError
+from egovid.core.video.isobmff import iter_boxes
 
 FIX_VIDEO = "give a video file FFmpeg can decode (e.g. MP4/H.264, MKV, WebM)"
 _ACCEPTED_CUTS: set[Path] = set()  # truncated videos a caller accepted (see probe(allow_truncated=True))
@@ -62,22 +64,9 @@ def _is_mp4_without_index(p: Path) -> bool:
         with open(p, "rb") as fh:
             if fh.read(12)[4:8] != b"ftyp":
                 return False
-            fh.seek(0)
-            size = p.stat().st_size
-            pos = 0
-            while pos + 8 <= size:
-                fh.seek(pos)
-                head = fh.read(16)
-                n, kind = int.from_bytes(head[:4], "big"), head[4:8]
-                if kind == b"moov":
-                    return False
-                if n == 1 and len(head) == 16:
-                    n = int.from_bytes(head[8:16], "big")
-                if n < 8:
-                    break
-                pos += n
-            return True
-    except OSError:
+            with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+                return all(kind != "moov" for kind, *_ in iter_boxes(data))
+    except (OSError, ValueError):
         return False
 
 

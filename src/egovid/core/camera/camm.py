@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from egovid.core.camera.telemetry import ImuSamples, OrientationSamples
+from egovid.core.camera.imu import ImuSamples, OrientationSamples
 from egovid.core.video.isobmff import Track, read_tracks
 
 #: Record types.

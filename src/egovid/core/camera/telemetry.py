@@ -27,12 +27,14 @@ Everything is ``None`` (or empty) where the file has none; a file without any te
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from egovid.core.camera.camm import read_camm
+from egovid.core.camera.imu import ImuSamples, OrientationSamples
 from egovid.core.errors import EgovidError
 
 #: GoPro lens modes (GPMF ``VFOV``/``ZFOV`` codes) and their names.
@@ -52,42 +54,6 @@ CAMM_FORMAT_NAME = "CAMM"
 
 #: EIS states that mean "the camera did not stabilise the picture".
 _EIS_OFF = {"", "N", "NO", "OFF", "N/A", "NA", "0", "FALSE", "NONE"}
-
-
-@dataclass(frozen=True)
-class ImuSamples:
-    """IMU samples of a file.
-
-    ``times`` (N,) seconds on the video clock (telemetry-parser's, before any sync);
-    ``gyro`` (N, 3) angular rate in radians per second; ``accel`` (M, 3) m/s² at ``accel_times``
-    (M,) seconds, or ``None``. Axes are telemetry-parser's normalised IMU axes (a CAMM track's
-    are the camera's, :mod:`egovid.core.camera.camm`); the sync maps them to the camera's.
-    """
-
-    times: np.ndarray
-    gyro: np.ndarray
-    accel: np.ndarray | None = None
-    accel_times: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return len(self.times)
-
-    @property
-    def rate_hz(self) -> float:
-        """Median gyro sample rate in Hz."""
-        return float(1.0 / np.median(np.diff(self.times))) if len(self.times) > 1 else 0.0
-
-
-@dataclass(frozen=True)
-class OrientationSamples:
-    """Orientation quaternions recorded by the camera: ``times`` (N,) seconds on the video clock,
-    ``quaternions`` (N, 4) unit quaternions ``(w, x, y, z)`` in telemetry-parser's axes."""
-
-    times: np.ndarray
-    quaternions: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.times)
 
 
 @dataclass(frozen=True)
@@ -306,10 +272,6 @@ def _parsed_telemetry(p: Path) -> CameraTelemetry:
 
 def _with_camm(p: Path, tel: CameraTelemetry) -> CameraTelemetry:
     """``tel`` with what the file's CAMM track adds (see the module docstring)."""
-    from dataclasses import replace
-
-    from egovid.core.camera.camm import read_camm
-
     camm = read_camm(p)
     if camm is None:
         return tel

@@ -24,7 +24,8 @@ CODECS = ("av1", "vp9")  # what standalone pieces can be stored in
 #: libaom at cpu-used ``aom_speed``, its realtime mode where ``realtime``, else good quality, at
 #: quantiser ``--q`` + ``aom_dq``, in temporal layers of period ``aom_gop`` (1: flat), every
 #: reference refresh kept where ``aom_keep_refresh``, its cost tables fixed within a frame where
-#: ``aom_fixed_costs``, in ``2^aom_tile_columns`` tile columns).
+#: ``aom_fixed_costs``, motion-field projection off where not ``aom_ref_mvs``, quantisation
+#: matrices where ``aom_qm``, in ``2^aom_tile_columns`` tile columns).
 PRESETS: dict[str, dict] = {
     # SVT-AV1 preset 10 for standalone pieces; the joint candidate in AV1 by libaom's realtime
     # mode at cpu-used 7, flat (each frame from the ones before it and the older drive), every
@@ -59,6 +60,8 @@ PRESETS: dict[str, dict] = {
         "aom_gop": 1,
         "aom_keep_refresh": True,
         "aom_fixed_costs": True,
+        "aom_ref_mvs": False,
+        "aom_qm": True,
         "aom_tile_columns": 0,
     },
     # SVT-AV1 preset 8; libvpx's good-quality deadline at its fastest speed, two threads sharing
@@ -84,6 +87,8 @@ PRESETS: dict[str, dict] = {
         "aom_gop": 1,
         "aom_keep_refresh": False,
         "aom_fixed_costs": False,
+        "aom_ref_mvs": True,
+        "aom_qm": False,
         "aom_tile_columns": 1,
     },
     # SVT-AV1 preset 6; the joint candidate in AV1 by libaom's good-quality mode at cpu-used 6 (its
@@ -107,6 +112,8 @@ PRESETS: dict[str, dict] = {
         "aom_gop": 1,
         "aom_keep_refresh": False,
         "aom_fixed_costs": False,
+        "aom_ref_mvs": True,
+        "aom_qm": False,
         "aom_tile_columns": 0,
     },
 }
@@ -155,8 +162,10 @@ class IngestOptions:
     mode (:class:`~egovid.dashcam.codec.settings.EncoderSettings` ``keep_refresh``; False: coded as
     the first libaom archives); ``aom_fixed_costs``: its coefficient, mode and motion-vector cost
     tables are not updated within a frame (:class:`~egovid.dashcam.codec.settings.EncoderSettings`
-    ``fixed_costs``; False: libaom's defaults); ``aom_tile_columns``: its tile columns (log2; ``tile_columns`` is
-    libvpx's);
+    ``fixed_costs``; False: libaom's defaults); ``aom_ref_mvs``: False turns off its motion-field
+    projection and ``aom_qm`` turns on its quantisation matrices (``ref_mvs``, ``qm``; True and
+    False: libaom's defaults, as the first libaom archives); ``aom_tile_columns``: its tile columns
+    (log2; ``tile_columns`` is libvpx's);
     ``preset``: the name of the preset these came from (recorded with each segment).
     """
 
@@ -185,6 +194,8 @@ class IngestOptions:
     aom_gop: int = _D["aom_gop"]
     aom_keep_refresh: bool = _D["aom_keep_refresh"]
     aom_fixed_costs: bool = _D["aom_fixed_costs"]
+    aom_ref_mvs: bool = _D["aom_ref_mvs"]
+    aom_qm: bool = _D["aom_qm"]
     aom_tile_columns: int = _D["aom_tile_columns"]
     preset: str | None = DEFAULT_PRESET
 
@@ -273,6 +284,8 @@ class IngestOptions:
             gop=self.aom_gop,
             keep_refresh=self.aom_keep_refresh,
             fixed_costs=self.aom_fixed_costs,
+            ref_mvs=self.aom_ref_mvs,
+            qm=self.aom_qm,
             refresh=self.refresh,
             threads=self.threads,
             tile_columns=self.aom_tile_columns,

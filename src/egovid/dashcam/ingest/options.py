@@ -31,9 +31,10 @@ PRESETS: dict[str, dict] = {
     # mode at cpu-used 7, flat (each frame from the ones before it and the older drive), every
     # reference refresh kept, at --q + 10 (about SVT-AV1's PSNR-Y at --q + 14), two threads
     # sharing rows in one tile column, its coefficient, mode and motion-vector cost tables fixed
-    # within a frame: new drives of the day set -27.3 % BD-rate (PSNR-Y) against plain SVT-AV1
-    # preset 10 through `egovid dashcam ingest` (-25.9 % with two tile columns and libaom's cost
-    # updates, the same session; VP9 joint: +0.3 %, it lost every piece), the whole archive
+    # within a frame, motion-field projection off and quantisation matrices on: new drives of the
+    # day set -32.9 % BD-rate (PSNR-Y) against plain SVT-AV1 preset 10 through `egovid dashcam
+    # ingest` (-27.3 % without the last two, 2026-12-07, the same drives; -25.9 % with two tile
+    # columns and libaom's cost updates; VP9 joint: +0.3 %, it lost every piece), the whole archive
     # -41.9 % against the VP9 archive of before (docs/dashcam.md, "Codecs"). Speed, 720p joint
     # drive, 2 cores: 34.1-35.6 fps against 29.7-31.0 before (2026-12-05 09:41-09:44 UTC, load
     # 4.7-8.7, benchmarks/dashcam_ingest_speed.py, docs/dashcam.md "Faster since"); 1080p

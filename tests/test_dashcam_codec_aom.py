@@ -3,6 +3,7 @@ against the encoder's own pictures (a decoder fed the same references), random a
 independent truths that the reference is used (decoding without it gives other pictures) and
 pays (fewer bytes than the same frames coded alone)."""
 
+import ctypes
 import hashlib
 
 import numpy as np
@@ -178,8 +179,6 @@ def test_a_libaom_layer_period_other_than_1_2_4_is_refused():
 
 def _slot(dec: aom.AV1Decoder, s: int) -> np.ndarray:
     """The picture the decoder holds in reference slot ``s``."""
-    import ctypes
-
     buf = np.zeros((H * 3 // 2, W), np.uint8)
     ref = aom.Av1RefFrame()
     ref.idx, ref.img = s, dec._wrap(buf)
@@ -242,3 +241,126 @@ def test_fixed_costs_reach_libaom_and_decode_bit_exactly(fixed, monkeypatch):
     assert off <= set(told) if fixed else not off & set(told)
     out = list(registry.decode_segment(enc.blob, lambda k: base[k]))
     assert len(out) == n and all(np.array_equal(a, b) for a, b in zip(out, recon, strict=True))
+
+
+def _obus(packet: bytes) -> dict[int, bytes]:
+    """The OBUs of a temporal unit by type (AV1 spec 5.3: header, LEB128 size, payload)."""
+    out, i = {}, 0
+    while i < len(packet):
+        head = packet[i]
+        assert head & 2, "OBUs carry their sizes"
+        i += 1 + ((head >> 2) & 1)
+        size = shift = 0
+        while True:
+            b = packet[i]
+            size |= (b & 0x7F) << shift
+            i, shift = i + 1, shift + 7
+            if not b & 0x80:
+                break
+        out[(head >> 3) & 15] = packet[i : i + size]
+        i += size
+    return out
+
+
+def _seq_header_flags(packet: bytes) -> dict:
+    """The maximum frame size (pixels), ``enable_order_hint`` and ``enable_ref_frame_mvs`` of the
+    sequence header OBU (type 1) in a keyframe's temporal unit (AV1 spec 5.5; the path libaom takes
+    here: no reduced still-picture header, no timing info)."""
+    bits = "".join(f"{b:08b}" for b in _obus(packet)[1])
+    pos = 0
+
+    def f(n: int) -> int:
+        nonlocal pos
+        pos += n
+        return int(bits[pos - n : pos], 2) if n else 0
+
+    f(3)  # seq_profile
+    f(1)  # still_picture
+    assert f(1) == 0 and f(1) == 0  # reduced_still_picture_header, timing_info_present_flag
+    display_delay = f(1)
+    for _ in range(f(5) + 1):  # operating points
+        f(12)
+        if f(5) > 7:
+            f(1)
+        if display_delay and f(1):
+            f(4)
+    wb, hb = f(4) + 1, f(4) + 1
+    size = (f(wb) + 1, f(hb) + 1)  # max_frame_width_minus_1, max_frame_height_minus_1
+    if f(1):  # frame_id_numbers_present_flag
+        f(7)
+    f(3)  # use_128x128_superblock, enable_filter_intra, enable_intra_edge_filter
+    f(4)  # enable_interintra_compound, enable_masked_compound, enable_warped_motion, enable_dual_filter
+    order_hint = f(1)
+    if order_hint:
+        f(1)  # enable_jnt_comp
+    return {"size": size, "enable_order_hint": order_hint, "enable_ref_frame_mvs": f(1) if order_hint else 0}
+
+
+def test_ref_mvs_off_and_qm_on_reach_libaom_and_decode_bit_exactly(monkeypatch):
+    """``ref_mvs`` False and ``qm`` True (the realtime preset's joint candidate): the bitstream's
+    own sequence header says motion-field projection is off, quantisation matrices change the
+    packets (and libaom's matrix-level range, ``AV1E_SET_QM_MIN``/``MAX`` 64/65, matters only with
+    them: the control id is the matrices'), and the segment decodes to the encoder's pictures."""
+    n = 8
+    new, base = _pair(n)
+    st = EncoderSettings(q=30, speed=7, codec="aom", realtime=True, refresh=n, keep_refresh=True, fixed_costs=True)
+
+    def coded(s: EncoderSettings, recon=None) -> tuple[bytes, list[bytes]]:
+        enc = registry.encode_segment(iter(new), W, H, s, baselines=lambda k: base[k], keep_recon=recon, verify=True)
+        lay, off = codec.parse_header(enc.blob)
+        return enc.blob, list(codec.iter_packets(enc.blob, off, lay.n_packets))
+
+    plain, plain_pk = coded(st)
+    assert _seq_header_flags(plain_pk[0]) == {"size": (W, H), "enable_order_hint": 1, "enable_ref_frame_mvs": 1}
+    recon: list = []
+    both, both_pk = coded(EncoderSettings(**{**st.__dict__, "ref_mvs": False, "qm": True}), recon)
+    assert _seq_header_flags(both_pk[0]) == {"size": (W, H), "enable_order_hint": 1, "enable_ref_frame_mvs": 0}
+    assert both != plain
+    out = list(registry.decode_segment(both, lambda k: base[k]))
+    assert len(out) == n and all(np.array_equal(a, b) for a, b in zip(out, recon, strict=True))
+    qm_only, qm_pk = coded(EncoderSettings(**{**st.__dict__, "qm": True}))
+    assert qm_only != plain and _seq_header_flags(qm_pk[0])["enable_ref_frame_mvs"] == 1
+    # the matrices' level range: a change with them on, none without them
+    real = aom.AV1Encoder.__init__
+
+    def steep(self, *args, **kwargs) -> None:
+        real(self, *args, **kwargs)
+        for ctrl in (64, 65):  # AV1E_SET_QM_MIN, AV1E_SET_QM_MAX (libaom 3.6's aomcx.h)
+            self._control(ctrl, ctypes.c_int(0))
+
+    monkeypatch.setattr(aom.AV1Encoder, "__init__", steep)
+    assert coded(EncoderSettings(**{**st.__dict__, "qm": True}))[0] != qm_only
+    assert coded(st)[0] == plain
+
+
+def test_without_ref_mvs_and_qm_a_segment_is_coded_as_before(monkeypatch):
+    """The defaults (``ref_mvs`` True, ``qm`` False; every preset but realtime's, and the segments
+    coded before them) leave both controls unset, and the packets are those of libaom told its
+    own defaults explicitly (motion-field projection on, no matrices): coded as before, byte for
+    byte."""
+    told: list[int] = []
+    real_control = aom._Codec._control
+
+    def spy(self, ctrl, value):
+        told.append(ctrl)
+        return real_control(self, ctrl, value)
+
+    monkeypatch.setattr(aom._Codec, "_control", spy)
+    n = 8
+    new, base = _pair(n)
+    st = EncoderSettings(q=30, speed=7, codec="aom", realtime=True, refresh=n, keep_refresh=True, fixed_costs=True)
+    assert (st.ref_mvs, st.qm) == (True, False)
+    enc = registry.encode_segment(iter(new), W, H, st, baselines=lambda k: base[k])
+    assert told and not {aom.AV1E_SET_ENABLE_REF_FRAME_MVS, aom.AV1E_SET_ENABLE_QM} & set(told)
+    real_init = aom.AV1Encoder.__init__
+
+    def explicit(self, *args, **kwargs) -> None:
+        real_init(self, *args, **kwargs)
+        self._control(aom.AV1E_SET_ENABLE_REF_FRAME_MVS, ctypes.c_int(1))
+        self._control(aom.AV1E_SET_ENABLE_QM, ctypes.c_int(0))
+
+    monkeypatch.setattr(aom.AV1Encoder, "__init__", explicit)
+    told.clear()
+    again = registry.encode_segment(iter(new), W, H, st, baselines=lambda k: base[k])
+    assert {aom.AV1E_SET_ENABLE_REF_FRAME_MVS, aom.AV1E_SET_ENABLE_QM} <= set(told)
+    assert again.blob == enc.blob

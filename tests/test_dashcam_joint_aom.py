@@ -79,6 +79,9 @@ def test_a_piece_is_coded_jointly_in_av1_and_the_choice_recorded(pair):
         assert joint[0].params["realtime"] and joint[0].params["q"] == 32 + rt["aom_dq"]
         assert (joint[0].params["speed"], joint[0].params["gop"], joint[0].params["preset"]) == (7, 1, "realtime")
         assert joint[0].params["keep_refresh"] and joint[0].params["fixed_costs"]
+        # libaom's motion-field projection off, quantisation matrices on: recorded where set only
+        assert joint[0].params["ref_mvs"] is False and joint[0].params["qm"] is True
+        assert all("ref_mvs" not in s.params and "qm" not in s.params for s in segs if s.params["codec"] != "aom")
         assert joint[0].ref_drive_id == a.id
         # The injected reference is what the pictures are predicted from: without it libaom refuses,
         # with a grey picture in its place the pictures come out otherwise.
@@ -129,7 +132,8 @@ def test_the_joint_codec_must_code_against_the_older_drive(pair):
 def test_the_presets_joint_codecs():
     """The archive preset's joint candidate is libaom in good quality at its fastest speed, flat;
     the default realtime preset's is libaom's realtime mode at cpu-used 7, flat, every reference
-    refresh kept, cost tables fixed within a frame, at --q + 10;
+    refresh kept, cost tables fixed within a frame, motion-field projection off, quantisation
+    matrices on, at --q + 10;
     --joint-codec vp9 gives the VP9 settings of before (the balanced preset's default)."""
     st = IngestOptions.from_preset("archive").joint_settings(30.0)
     assert (st.codec, st.realtime, st.speed, st.q, st.threads, st.gop, st.keep_refresh, st.fixed_costs) == (
@@ -145,6 +149,10 @@ def test_the_presets_joint_codecs():
     st = IngestOptions().joint_settings(25.0)
     assert (st.codec, st.realtime, st.speed, st.q, st.gop, st.fps, st.refresh) == ("aom", True, 7, 42, 1, 25, 24)
     assert st.keep_refresh and st.fixed_costs and st.tile_columns == 0  # libaom's; libvpx's stay at 1
+    assert (st.ref_mvs, st.qm) == (False, True)  # motion-field projection off, quantisation matrices on
+    for name in ("archive", "balanced"):  # libaom's defaults: coded as before
+        st = IngestOptions.from_preset(name, joint_codec="aom").joint_settings(30.0)
+        assert (st.ref_mvs, st.qm) == (True, False)
     assert IngestOptions().encoder_settings(25.0).tile_columns == 1
     assert IngestOptions.from_preset(None) == IngestOptions() and IngestOptions().preset == "realtime"
     vp9 = IngestOptions.from_preset("realtime", joint_codec="vp9")

@@ -110,10 +110,11 @@ def ingest(
         "balanced (SVT-AV1 preset 8; VP9 good-quality deadline, 2 threads) | archive (SVT-AV1 preset 6; the "
         "joint candidate in AV1 by libaom's good-quality mode, 1 thread: slowest). Figures in docs/dashcam.md "
         "say which baseline they are against: through this command, with the realtime preset, new drives of "
-        "the different-day set are 27 % smaller than plain SVT-AV1 at the same preset and keyframe spacing "
+        "the different-day set are 33 % smaller than plain SVT-AV1 at the same preset and keyframe spacing "
         "(BD-rate, PSNR-Y), first drives within 0.3 % of it, and the whole archive 42 % smaller than the "
         "all-VP9 archive of before; against plain SVT-AV1 at the ingest's own speed (presets 7-6) new drives "
-        "are 6-13 % larger (use --preset archive for the smallest files). The options below override it.",
+        "were 6-13 % larger before its libaom joint candidate took quantisation matrices (use --preset archive "
+        "for the smallest files). The options below override it.",
     ),
     q: int = typer.Option(
         None,
@@ -137,7 +138,7 @@ def ingest(
         "libaom's decoder with the same reference) | vp9 (balanced preset: libvpx; at the realtime preset's "
         "speed +29.6 % against plain SVT-AV1 preset 10 at equal PSNR-Y, so the standalone AV1 encode wins "
         "nearly every piece). Through this command on different-day drives (BD-rate, PSNR-Y; docs/dashcam.md): "
-        "with --preset realtime (libaom's realtime mode, cpu-used 7) new drives are 27.3 % smaller than plain "
+        "with --preset realtime (libaom's realtime mode, cpu-used 7) new drives are 32.9 % smaller than plain "
         "SVT-AV1 preset 10; with --preset archive (good quality) 39 % smaller than plain SVT-AV1 preset 6, "
         "32 % smaller than preset 4 and 25 % smaller than preset 3, the plain encoder at the ingest's own speed. "
         "The smaller of joint and standalone at equal PSNR-Y is kept, and why is recorded.",

@@ -57,6 +57,8 @@ AV1E_SET_TILE_COLUMNS = 33
 AV1E_SET_ENABLE_TPL_MODEL = 35
 AV1E_SET_ENABLE_KEYFRAME_FILTERING = 36
 AV1E_SET_AQ_MODE = 40
+AV1E_SET_ENABLE_QM = 63
+AV1E_SET_ENABLE_REF_FRAME_MVS = 84
 AV1E_SET_COEFF_COST_UPD_FREQ = 126
 AV1E_SET_MODE_COST_UPD_FREQ = 127
 AV1E_SET_MV_COST_UPD_FREQ = 128
@@ -350,7 +352,11 @@ class AomSettings:
     good quality, 0-10 in realtime), ``realtime`` (AOM_USAGE_REALTIME instead of good quality),
     ``threads``, ``row_mt``, ``tile_columns`` (log2), ``fps``; ``fixed_costs``: the coefficient,
     mode and motion-vector cost tables are not updated within a frame (:data:`FIXED_COSTS` off;
-    False: libaom's defaults, as the first archives)."""
+    False: libaom's defaults, as the first archives); ``ref_mvs``: False turns off motion-field
+    projection from the reference frames' motion vectors (``AV1E_SET_ENABLE_REF_FRAME_MVS`` 0;
+    True: libaom's default, the control is not set); ``qm``: quantisation matrices
+    (``AV1E_SET_ENABLE_QM`` 1; False: libaom's default, not set). All three are encoder choices
+    the bitstream carries: the decoder needs nothing."""
 
     q: int
     speed: int
@@ -360,6 +366,8 @@ class AomSettings:
     tile_columns: int = 0
     fps: int = 30
     fixed_costs: bool = False
+    ref_mvs: bool = True
+    qm: bool = False
 
 
 class AV1Encoder(_Codec):
@@ -419,6 +427,10 @@ class AV1Encoder(_Codec):
         ]
         if settings.fixed_costs:
             controls += [(c, COST_UPD_OFF) for c in FIXED_COSTS]
+        if not settings.ref_mvs:
+            controls.append((AV1E_SET_ENABLE_REF_FRAME_MVS, 0))
+        if settings.qm:
+            controls.append((AV1E_SET_ENABLE_QM, 1))
         for ctrl, value in controls:
             self._control(ctrl, ctypes.c_int(value))
         self._pts = 0

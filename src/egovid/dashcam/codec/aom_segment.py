@@ -44,6 +44,8 @@ def aom_settings(settings: EncoderSettings) -> aom.AomSettings:
         tile_columns=settings.tile_columns,
         fps=settings.fps,
         fixed_costs=settings.fixed_costs,
+        ref_mvs=settings.ref_mvs,
+        qm=settings.qm,
     )
 
 

@@ -46,7 +46,11 @@ class EncoderSettings:
     flat structure of the first libaom archives, byte for byte; layers always keep theirs);
     ``fixed_costs`` (libaom): no updates of the coefficient, mode and motion-vector cost tables
     within a frame (:class:`~egovid.dashcam.codec.aom.AomSettings`; an encoder setting only, the
-    decoder needs nothing; False: libaom's defaults, as the first libaom archives)."""
+    decoder needs nothing; False: libaom's defaults, as the first libaom archives); ``ref_mvs``
+    (libaom): False turns off motion-field projection (temporal motion-vector candidates
+    projected from the reference frames' motion vectors); ``qm`` (libaom): quantisation matrices
+    (both encoder settings only, the decoder reads them from the bitstream; True and False are
+    libaom's defaults, as the first libaom archives, and leave its controls unset)."""
 
     q: int
     speed: int
@@ -62,6 +66,8 @@ class EncoderSettings:
     start_speed: int = 0
     keep_refresh: bool = False
     fixed_costs: bool = False
+    ref_mvs: bool = True
+    qm: bool = False
 
     def __post_init__(self) -> None:
         if self.codec not in SPEEDS:

@@ -24,15 +24,17 @@ CODECS = ("av1", "vp9")  # what standalone pieces can be stored in
 #: libaom at cpu-used ``aom_speed``, its realtime mode where ``realtime``, else good quality, at
 #: quantiser ``--q`` + ``aom_dq``, in temporal layers of period ``aom_gop`` (1: flat), every
 #: reference refresh kept where ``aom_keep_refresh``, its cost tables fixed within a frame where
-#: ``aom_fixed_costs``, in ``2^aom_tile_columns`` tile columns).
+#: ``aom_fixed_costs``, motion-field projection off where not ``aom_ref_mvs``, quantisation
+#: matrices where ``aom_qm``, in ``2^aom_tile_columns`` tile columns).
 PRESETS: dict[str, dict] = {
     # SVT-AV1 preset 10 for standalone pieces; the joint candidate in AV1 by libaom's realtime
     # mode at cpu-used 7, flat (each frame from the ones before it and the older drive), every
     # reference refresh kept, at --q + 10 (about SVT-AV1's PSNR-Y at --q + 14), two threads
     # sharing rows in one tile column, its coefficient, mode and motion-vector cost tables fixed
-    # within a frame: new drives of the day set -27.3 % BD-rate (PSNR-Y) against plain SVT-AV1
-    # preset 10 through `egovid dashcam ingest` (-25.9 % with two tile columns and libaom's cost
-    # updates, the same session; VP9 joint: +0.3 %, it lost every piece), the whole archive
+    # within a frame, motion-field projection off and quantisation matrices on: new drives of the
+    # day set -32.9 % BD-rate (PSNR-Y) against plain SVT-AV1 preset 10 through `egovid dashcam
+    # ingest` (-27.3 % without the last two, 2026-12-07, the same drives; -25.9 % with two tile
+    # columns and libaom's cost updates; VP9 joint: +0.3 %, it lost every piece), the whole archive
     # -41.9 % against the VP9 archive of before (docs/dashcam.md, "Codecs"). Speed, 720p joint
     # drive, 2 cores: 34.1-35.6 fps against 29.7-31.0 before (2026-12-05 09:41-09:44 UTC, load
     # 4.7-8.7, benchmarks/dashcam_ingest_speed.py, docs/dashcam.md "Faster since"); 1080p
@@ -59,6 +61,8 @@ PRESETS: dict[str, dict] = {
         "aom_gop": 1,
         "aom_keep_refresh": True,
         "aom_fixed_costs": True,
+        "aom_ref_mvs": False,
+        "aom_qm": True,
         "aom_tile_columns": 0,
     },
     # SVT-AV1 preset 8; libvpx's good-quality deadline at its fastest speed, two threads sharing
@@ -84,6 +88,8 @@ PRESETS: dict[str, dict] = {
         "aom_gop": 1,
         "aom_keep_refresh": False,
         "aom_fixed_costs": False,
+        "aom_ref_mvs": True,
+        "aom_qm": False,
         "aom_tile_columns": 1,
     },
     # SVT-AV1 preset 6; the joint candidate in AV1 by libaom's good-quality mode at cpu-used 6 (its
@@ -107,6 +113,8 @@ PRESETS: dict[str, dict] = {
         "aom_gop": 1,
         "aom_keep_refresh": False,
         "aom_fixed_costs": False,
+        "aom_ref_mvs": True,
+        "aom_qm": False,
         "aom_tile_columns": 0,
     },
 }
@@ -155,8 +163,10 @@ class IngestOptions:
     mode (:class:`~egovid.dashcam.codec.settings.EncoderSettings` ``keep_refresh``; False: coded as
     the first libaom archives); ``aom_fixed_costs``: its coefficient, mode and motion-vector cost
     tables are not updated within a frame (:class:`~egovid.dashcam.codec.settings.EncoderSettings`
-    ``fixed_costs``; False: libaom's defaults); ``aom_tile_columns``: its tile columns (log2; ``tile_columns`` is
-    libvpx's);
+    ``fixed_costs``; False: libaom's defaults); ``aom_ref_mvs``: False turns off its motion-field
+    projection and ``aom_qm`` turns on its quantisation matrices (``ref_mvs``, ``qm``; True and
+    False: libaom's defaults, as the first libaom archives); ``aom_tile_columns``: its tile columns
+    (log2; ``tile_columns`` is libvpx's);
     ``preset``: the name of the preset these came from (recorded with each segment).
     """
 
@@ -185,6 +195,8 @@ class IngestOptions:
     aom_gop: int = _D["aom_gop"]
     aom_keep_refresh: bool = _D["aom_keep_refresh"]
     aom_fixed_costs: bool = _D["aom_fixed_costs"]
+    aom_ref_mvs: bool = _D["aom_ref_mvs"]
+    aom_qm: bool = _D["aom_qm"]
     aom_tile_columns: int = _D["aom_tile_columns"]
     preset: str | None = DEFAULT_PRESET
 
@@ -273,6 +285,8 @@ class IngestOptions:
             gop=self.aom_gop,
             keep_refresh=self.aom_keep_refresh,
             fixed_costs=self.aom_fixed_costs,
+            ref_mvs=self.aom_ref_mvs,
+            qm=self.aom_qm,
             refresh=self.refresh,
             threads=self.threads,
             tile_columns=self.aom_tile_columns,

@@ -619,6 +619,12 @@ def _encoded(run, opts, enc, sha, kept, why, encoders, alone, joint, t_start) ->
         "stopped_frames": int(run.stopped.sum()),
         "prior_fallbacks": run.fallbacks,
     }
+    # libaom's motion-field projection off and quantisation matrices on: recorded only where set,
+    # so the params of segments coded without them read as before
+    if not st.ref_mvs:
+        params["ref_mvs"] = False
+    if st.qm:
+        params["qm"] = True
     ref = run.ref if kept else None
     return EncodedPiece(
         run.piece.frames,

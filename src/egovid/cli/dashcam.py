@@ -112,9 +112,9 @@ def ingest(
         "say which baseline they are against: through this command, with the realtime preset, new drives of "
         "the different-day set are 33 % smaller than plain SVT-AV1 at the same preset and keyframe spacing "
         "(BD-rate, PSNR-Y), first drives within 0.3 % of it, and the whole archive 42 % smaller than the "
-        "all-VP9 archive of before; against plain SVT-AV1 at the ingest's own speed (presets 7-6) new drives "
-        "were 6-13 % larger before its libaom joint candidate took quantisation matrices (use --preset archive "
-        "for the smallest files). The options below override it.",
+        "all-VP9 archive of before; against plain SVT-AV1 at the ingest's own speed (between presets 7 and 6) "
+        "new drives are about as large (-4 % to +2 %); use --preset archive for the smallest files. The "
+        "options below override it.",
     ),
     q: int = typer.Option(
         None,

@@ -110,11 +110,12 @@ def test_stabilize_bad_input(tmp_path, still_clip):
 
 @pytest.fixture(scope="module")
 def long_clip(tmp_path_factory):
-    """1280x720, 600 frames (20 s) of one still picture, with a made-up motion CSV: cheap to
+    """1280x720, 1800 frames (60 s) of one still picture, with a made-up motion CSV: cheap to
     write and to plan, but far too long for `fpv stabilize --motion` to render before a signal
-    arrives."""
+    arrives (600 frames were rendered whole once, on a loaded machine, before the test's poll saw
+    the partial output)."""
     folder = tmp_path_factory.mktemp("long")
-    clip, n = folder / "long.mp4", 600
+    clip, n = folder / "long.mp4", 1800
     y, x = np.mgrid[0:720, 0:1280]
     picture = np.stack([x % 256, y % 256, (x // 40 + y // 40) % 2 * 255], axis=2).astype(np.uint8)
     with VideoWriter(clip, 1280, 720, 30) as w:

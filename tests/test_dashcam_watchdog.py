@@ -7,6 +7,7 @@ hang itself cannot be reproduced on demand)."""
 from __future__ import annotations
 
 import threading
+import time
 
 import pytest
 
@@ -104,8 +105,6 @@ def test_heartbeat_is_overdue_only_while_the_codec_holds_control_past_its_allowa
     beat = Heartbeat()
     assert beat.overdue(1e12) < 0  # idle
     beat.busy(5.0)
-    import time
-
     now = time.monotonic()
     assert beat.overdue(now + 4.0) < 0 < beat.overdue(now + 6.0)
     beat.idle()

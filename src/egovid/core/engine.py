@@ -354,7 +354,7 @@ def spawn_cluster(
             client.wait_for_workers(workers, timeout=max(1.0, deadline - time.monotonic()))
         yield address
     finally:
-        _stop(procs)
+        stop_groups(procs)
 
 
 def _scheduler_address(sched_file: Path, scheduler: subprocess.Popen, deadline: float, timeout: float) -> str:
@@ -368,7 +368,7 @@ def _scheduler_address(sched_file: Path, scheduler: subprocess.Popen, deadline: 
     return json.loads(sched_file.read_text())["address"]
 
 
-def _stop(procs: list[subprocess.Popen]) -> None:
+def stop_groups(procs: list[subprocess.Popen]) -> None:
     """Stop the process groups of ``procs``, last started first: SIGTERM, then SIGKILL after 30 s."""
     for p in reversed(procs):
         with contextlib.suppress(ProcessLookupError):

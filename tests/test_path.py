@@ -11,7 +11,7 @@ from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.errors import EgovidError
 from egovid.core.metrics.jitter import high_pass_rms
 from egovid.core.rotations import matrix_from_euler
-from egovid.fpv.stabilize.path import PathWeights, bspline_basis, fit_path, required_keep
+from egovid.fpv.stabilize.path import PathWeights, bspline_basis, fit_path, pull_within_budget, required_keep
 from egovid.fpv.stabilize.render import homographies, zoom_about_centre
 
 INTR = Intrinsics.from_hfov(640, 360, 94.4)
@@ -93,3 +93,26 @@ def test_bspline_basis_is_a_partition_of_unity():
     B = bspline_basis(101, 3.0)
     np.testing.assert_allclose(np.asarray(B.sum(axis=1)).ravel(), 1.0)
     assert B.shape == (101, 37) and B.getnnz(axis=1).max() == 4
+
+
+def test_a_path_the_budget_cannot_cover_is_pulled_towards_the_recorded_one_not_zoomed_past_it():
+    # A path that leaves the recorded one by 6° of yaw for a second (about 14 % of crop at 94°
+    # hfov): the zoom budget of 1.10 cannot cover it, so those frames must be moved back towards
+    # the recorded view, smoothly, and every frame covered at the budget's zoom (rendered masks).
+    n = 120
+    a = _shaky(n, seed=3, amp=0.1)
+    path = a.copy()
+    path[40:70, 0] += 6.0
+    path[30:40, 0] += np.linspace(0.0, 6.0, 10)
+    path[70:80, 0] += np.linspace(6.0, 0.0, 10)
+    min_keep = 1 / 1.10
+    assert required_keep(a, path, INTR).min() < min_keep - 0.01  # the premise
+    pulled, moved = pull_within_budget(a, path, INTR, min_keep, FPS)
+    assert moved > 0
+    np.testing.assert_array_equal(pulled[:15], path[:15])  # untouched far from the excursion
+    np.testing.assert_array_equal(pulled[95:], path[95:])
+    assert _covered(a, pulled, np.full(n, min_keep + 1e-6)).min() > 0.9999
+    dev = pulled[:, 0] - a[:, 0]
+    # Pulled no further than the budget needs: mid-excursion the whole budget is used.
+    assert dev[55] > 2.0 and required_keep(a, pulled, INTR)[45:65].min() < min_keep + 0.002
+    assert np.abs(np.diff(dev, 2)).max() < 1.0  # no jerk where the pull starts and ends

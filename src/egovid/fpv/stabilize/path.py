@@ -25,7 +25,8 @@ The corner constraints are linear in the path and the zoom after linearising the
 ``Rᵀ R̃ ≈ I + [ω]×`` (ω = J δ from the Euler-angle deviation δ) and the perspective terms at the
 current zoom; each solve is followed by the exact check of every corner, and frames that the
 linearisation got wrong get a larger margin and the programme is solved again (at most three
-passes, then the zoom of any frame still short is raised to what it exactly needs). Long clips are
+passes, then the path of any frame still short is pulled towards the recorded one, by the least
+blend the budget covers, eased over a quarter second: the zoom never exceeds ``max_zoom``). Long clips are
 solved in overlapping blocks whose starts are tied to the previous block's result, so the cost
 grows linearly with length.
 """
@@ -38,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.ndimage import minimum_filter1d, uniform_filter1d
 from scipy.optimize import linprog
 
 from egovid.core.camera.intrinsics import Intrinsics
@@ -379,10 +381,47 @@ def fit_path(
         margin = np.where(short > SHORTFALL_TOLERANCE_PX, margin + 1.5 * short + 0.05, margin)
         keep0 = keep
     else:
+        missed = int(np.sum(short > SHORTFALL_TOLERANCE_PX))
+        path, pulled = pull_within_budget(original, path, intr, min_keep, fps)
         need = required_keep(original, path, intr)
         keep = np.minimum(keep, need)
-        missed = int(np.sum(short > SHORTFALL_TOLERANCE_PX))
-        notes.append(f"the linearised corners missed {missed} frames; their zoom raised to cover them")
-        if 1.0 / need.min() > max_zoom + 1e-6:
+        if pulled:
+            notes.append(
+                f"the linearised corners missed {missed} frames; the path was pulled towards the recorded "
+                f"one on {pulled} frames to stay within the maximum zoom {max_zoom:g}x"
+            )
+        else:
+            notes.append(f"the linearised corners missed {missed} frames; their zoom raised to cover them")
+        if 1.0 / need.min() > max_zoom + 1e-6:  # not expected: the recorded path needs no zoom
             notes.append(f"zoom reaches {1.0 / need.min():.3f}x, above the maximum {max_zoom:g}x")
     return FittedPath(path, keep, passes, time.perf_counter() - t0, notes)
+
+
+def pull_within_budget(
+    original: np.ndarray, path: np.ndarray, intr: Intrinsics, min_keep: float, fps: float, ramp_s: float = 0.25
+) -> tuple[np.ndarray, int]:
+    """The (K, 3) ``path`` (degrees) moved towards the recorded ``original`` on the frames whose
+    exact corners need a share of the frame below ``min_keep`` (a zoom above the budget), and the
+    number of frames moved. Each such frame gets the largest blend ``α`` (path = original +
+    α (path − original); α = 1 leaves it, 0 is the recorded view, which needs no zoom) that the
+    budget covers (bisection on the exact corners); ``α`` is then eroded and box-averaged over
+    ``ramp_s`` seconds, which never raises it, so the pull starts and ends without a jerk."""
+    original = np.asarray(original, dtype=float)
+    path = np.asarray(path, dtype=float)
+    bad = np.flatnonzero(required_keep(original, path, intr) < min_keep - 1e-9)
+    if not len(bad):
+        return path, 0
+    o, d = original[bad], path[bad] - original[bad]
+    lo = np.zeros(len(bad))  # covered: the recorded view needs no zoom
+    hi = np.ones(len(bad))  # not covered
+    for _ in range(20):
+        mid = 0.5 * (lo + hi)
+        good = required_keep(o, o + mid[:, None] * d, intr) >= min_keep - 1e-9
+        lo = np.where(good, mid, lo)
+        hi = np.where(good, hi, mid)
+    best = np.ones(len(path))
+    best[bad] = lo
+    w = max(round(ramp_s * fps), 1)
+    eroded = minimum_filter1d(best, 2 * w + 1, mode="nearest")
+    alpha = np.minimum(uniform_filter1d(eroded, 2 * w + 1, mode="nearest"), best)
+    return original + alpha[:, None] * (path - original), int(np.sum(alpha < 1.0 - 1e-9))

@@ -87,3 +87,31 @@ def test_the_registry_names_each_backend_and_refuses_what_it_cannot_do():
     with pytest.raises(EgovidError, match="unknown format"):
         codec.parse_header(bytes(damaged))
     assert "SVT-AV1" in registry.describe() and "libvpx" in registry.describe()
+
+
+def test_an_av1_encode_leaves_its_thread_at_normal_priority():
+    """SVT-AV1 turns the thread that opens an encoder real-time (SCHED_FIFO 99) when run as root:
+    every process that thread starts later would inherit it and starve the machine."""
+    import os
+    import threading
+    from fractions import Fraction
+
+    import av
+
+    seen = {}
+
+    def open_plain() -> None:  # SVT-AV1 opened directly, in a thread of its own that then ends
+        cc = av.CodecContext.create("libsvtav1", "w")
+        cc.width, cc.height, cc.pix_fmt, cc.time_base = 64, 64, "yuv420p", Fraction(1, 30)
+        cc.open()
+        seen["policy"] = os.sched_getscheduler(0)
+
+    t = threading.Thread(target=open_plain)
+    t.start()
+    t.join(60)
+    assert not t.is_alive(), "opening SVT-AV1 did not return"
+    if os.geteuid() == 0:  # the premise, where it holds (CI runs as root)
+        assert seen["policy"] == os.SCHED_FIFO
+    before = (os.sched_getscheduler(0), os.sched_getparam(0))
+    registry.encode_segment(iter(_clip(6, 90, 60)), 90, 60, AV1)
+    assert (os.sched_getscheduler(0), os.sched_getparam(0)) == before

@@ -42,7 +42,33 @@ def _encoder(pw: int, ph: int, settings: EncoderSettings) -> av.CodecContext:
     cc.gop_size = settings.refresh if settings.refresh else 1 << 20
     params = f"irefresh-type=2:lp={settings.threads}"
     cc.options = {"preset": str(settings.speed), "crf": str(max(settings.q, 1)), "svtav1-params": params}
+    with keep_thread_scheduling():
+        cc.open()
     return cc
+
+
+@contextlib.contextmanager
+def keep_thread_scheduling() -> Iterator[None]:
+    """Give the calling thread back the scheduling policy it had before the block.
+
+    SVT-AV1 (4.1.0 at least) switches the thread that opens an encoder to real-time ``SCHED_FIFO``
+    priority 99 when the process runs as root (its banner then warns "Failed to set thread
+    priority" for its own threads). Left so, that thread — often a program's main thread — and
+    every process it starts afterwards (exiftool, ffmpeg, a test's command) run real-time: a busy
+    child then takes every core it can and nothing of normal priority runs until it ends (seen: a
+    test's 0.2-s poll blocked for minutes while a child rendered, and a loaded machine's other
+    work stalled). Measured by reading the thread's policy back from the kernel before and after."""
+    try:
+        policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    except (AttributeError, OSError):  # no POSIX scheduling here: nothing to keep
+        yield
+        return
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            if os.sched_getscheduler(0) != policy or os.sched_getparam(0) != param:
+                os.sched_setscheduler(0, policy, param)
 
 
 def packet(data: bytes) -> av.Packet:

@@ -212,7 +212,10 @@ def score(
 def stabilize_cmd(
     src: Path = typer.Argument(..., help="Input video."),
     out: Path = typer.Option(
-        ..., "-o", "--out", help="Output video (MP4/H.264; audio, telemetry, timing and colour kept)."
+        ...,
+        "-o",
+        "--out",
+        help="Output video (MP4: H.264, or HEVC Main10 at 10 bits; audio, telemetry, timing, colour and HDR kept).",
     ),
     strength: float = typer.Option(1.0, help="0 = untouched … 1 = the optimum of eq. 9.4 (default)."),
     borders: str = typer.Option(
@@ -252,7 +255,13 @@ def stabilize_cmd(
     anchor_threshold: float = typer.Option(
         0.5, min=0.01, max=20.0, help="Degrees a motion must turn back to count as an intentional extreme."
     ),
-    crf: int = typer.Option(18, min=0, max=51, help="H.264 quality of the output (lower = better)."),
+    crf: int = typer.Option(18, min=0, max=51, help="x264/x265 quality of the output (lower = better)."),
+    bit_depth: str = typer.Option(
+        "auto",
+        "--bit-depth",
+        help="Bits per sample of the output: auto (the input's: 10-bit and HDR phone video gives 10-bit HEVC "
+        "Main10 with its BT.2020/HLG/PQ tags and HDR10 metadata, 8-bit gives H.264) | 8 (H.264) | 10 (HEVC Main10).",
+    ),
     source: str = source_option(),
     allow_truncated: bool = ALLOW_TRUNCATED,
 ) -> None:
@@ -269,9 +278,11 @@ def stabilize_cmd(
     known rolling-shutter readout (--readout, GoPro SROT, the lens profile) every row band is warped
     from its own time. Unless --no-measure, the output is decoded and measured again, next to the plan.
     """
+    from egovid.fpv.stabilize.render import BIT_DEPTHS
     from egovid.fpv.stabilize.run import check_options, saved_motion_paths, stabilize_video
 
     check_options(strength, borders, method)
+    choice(bit_depth, "--bit-depth", BIT_DEPTHS)
     number(max_zoom, "--max-zoom", lo=1.0, hi=4.0)
     number(readout, "--readout", lo=-100.0, hi=100.0, unit="ms")
     check_source(source)
@@ -288,8 +299,8 @@ def stabilize_cmd(
         res = stabilize_video(
             src, out, source=source, focal=focal, hfov=hfov, motion=motion, strength=strength, borders=borders,
             max_zoom=max_zoom, keep_roll=keep_roll, method=method, anchor_threshold=anchor_threshold, crf=crf,
-            measure=measure, horizon_lock=horizon_lock, readout_ms=readout, save_motion=save_motion, json_out=json_out,
-            report=report, progress=cb,
+            bit_depth=bit_depth, measure=measure, horizon_lock=horizon_lock, readout_ms=readout,
+            save_motion=save_motion, json_out=json_out, report=report, progress=cb,
         )  # fmt: skip
     s = res.summary()
     if "motion_source" in s:

@@ -1,10 +1,13 @@
 """How a video's pixel values are to be read: its colour tags (primaries, transfer, Y'CbCr matrix,
-range) by FFmpeg's names, and the writer's BGR -> I420 conversion with that matrix and range."""
+range) by FFmpeg's names, its HDR mastering-display and content-light metadata, the bits per
+sample of a pixel format, and the writer's BGR -> I420 conversion with that matrix and range."""
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 
+import av
 import cv2
 import numpy as np
 
@@ -107,3 +110,63 @@ def bgr_to_i420(image: np.ndarray, colour: ColourTags) -> np.ndarray:
     flat[: half.shape[0] * half.shape[1]] = half[..., 1].ravel()
     flat[half.shape[0] * half.shape[1] :] = half[..., 2].ravel()
     return out
+
+
+def sample_bits(pix_fmt: str) -> int:
+    """Bits per sample of FFmpeg's pixel format ``pix_fmt`` (8 for ``yuv420p``, 10 for
+    ``yuv420p10le``; 8 where the format is unknown)."""
+    try:
+        return max(c.bits for c in av.VideoFormat(pix_fmt).components)
+    except (ValueError, TypeError):
+        return 8
+
+
+@dataclass(frozen=True)
+class HdrMetadata:
+    """An HDR10 video's static metadata, as its frames carry it (HEVC SEI, FFmpeg's frame side data).
+
+    ``display``: the mastering display's chromaticities as ``(Gx, Gy, Bx, By, Rx, Ry, WPx, WPy)`` in
+    units of 0.00002 (CIE 1931 xy) and its ``(max, min)`` luminance in units of 0.0001 cd/m²
+    (None where the frames carry none); ``light``: ``(MaxCLL, MaxFALL)`` in cd/m² (None likewise).
+    The units are those of x265's ``master-display`` and ``max-cll`` (:meth:`x265_params`).
+    """
+
+    display: tuple[tuple[int, ...], tuple[int, int]] | None = None
+    light: tuple[int, int] | None = None
+
+    @classmethod
+    def of(cls, frame: av.VideoFrame) -> HdrMetadata | None:
+        """The metadata of a decoded PyAV frame; None when it has neither kind."""
+        display = light = None
+        for kind, data in frame.side_data.items():
+            raw = bytes(data)
+            if kind == av.sidedata.sidedata.Type.MASTERING_DISPLAY_METADATA and len(raw) >= 88:
+                # AVMasteringDisplayMetadata: 10 rationals (R, G, B, white xy; min, max luminance),
+                # then has_primaries, has_luminance.
+                v = struct.unpack("<20i2i", raw[:88])
+                if v[20] and v[21]:
+                    xy = [round(50000 * v[2 * i] / v[2 * i + 1]) if v[2 * i + 1] else 0 for i in range(8)]
+                    r, g, b, wp = xy[0:2], xy[2:4], xy[4:6], xy[6:8]
+                    lo = round(10000 * v[16] / v[17]) if v[17] else 0
+                    hi = round(10000 * v[18] / v[19]) if v[19] else 0
+                    display = ((*g, *b, *r, *wp), (hi, lo))
+            elif kind == av.sidedata.sidedata.Type.CONTENT_LIGHT_LEVEL and len(raw) >= 8:
+                light = struct.unpack("<2I", raw[:8])
+        if display is None and light is None:
+            return None
+        return cls(display, light)
+
+    def x265_params(self) -> str:
+        """The metadata as x265 parameters (``master-display=...:max-cll=...``), which x265 writes
+        as SEI messages into every keyframe."""
+        parts = []
+        if self.display is not None:
+            (gx, gy, bx, by, rx, ry, wx, wy), (hi, lo) = self.display
+            parts.append(f"master-display=G({gx},{gy})B({bx},{by})R({rx},{ry})WP({wx},{wy})L({hi},{lo})")
+        if self.light is not None:
+            parts.append(f"max-cll={self.light[0]},{self.light[1]}")
+        return ":".join(parts)
+
+    def to_dict(self) -> dict:
+        """JSON-ready form."""
+        return {"display": self.display, "light": self.light}

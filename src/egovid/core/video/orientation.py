@@ -24,8 +24,8 @@ def to_display(image: np.ndarray, rotation: int) -> np.ndarray:
 
 
 def rotate_i420(img: np.ndarray, rotation: int) -> np.ndarray:
-    """Turn one I420 picture ((H*3/2, W) uint8: Y, then U, then V) by ``rotation`` degrees
-    counter-clockwise, plane by plane."""
+    """Turn one I420 picture ((H*3/2, W) uint8, or uint16 for 10 bits: Y, then U, then V) by
+    ``rotation`` degrees counter-clockwise, plane by plane."""
     k = (rotation // 90) % 4
     if not k:
         return img
@@ -36,7 +36,7 @@ def rotate_i420(img: np.ndarray, rotation: int) -> np.ndarray:
     u = flat[w * h : w * h + (w // 2) * (h // 2)].reshape(h // 2, w // 2)
     v = flat[w * h + (w // 2) * (h // 2) :].reshape(h // 2, w // 2)
     y, u, v = (np.rot90(p, k) for p in (y, u, v))
-    out = np.empty((y.shape[0] * 3 // 2, y.shape[1]), np.uint8)
+    out = np.empty((y.shape[0] * 3 // 2, y.shape[1]), img.dtype)
     o = out.reshape(-1)
     o[: y.size] = y.ravel()
     o[y.size : y.size + u.size] = u.ravel()

@@ -13,7 +13,7 @@ import av
 import numpy as np
 
 from egovid.core.errors import EgovidError
-from egovid.core.video.colour import ColourTags
+from egovid.core.video.colour import ColourTags, HdrMetadata, sample_bits
 from egovid.core.video.container import FIX_VIDEO, accept_cut, cut_accepted, ffmpeg_reason, open_video, packet_cut
 from egovid.core.video.orientation import rotation_of
 
@@ -29,7 +29,9 @@ class VideoInfo:
     ``frame_count`` is the container's claim (or an estimate from the duration); the exact count
     comes from decoding, see :func:`~egovid.core.video.read.count_frames`. ``rotation`` is the
     container's display rotation in degrees counter-clockwise. ``colour`` holds the colour tags of the video stream,
-    ``pix_fmt`` its decoded pixel format (e.g. ``yuvj420p``), ``timecode`` the SMPTE start
+    ``pix_fmt`` its decoded pixel format (e.g. ``yuvj420p``; :attr:`bit_depth` its bits per sample),
+    ``hdr`` the HDR10 mastering-display and content-light metadata of its first frame (None where it
+    has none), ``timecode`` the SMPTE start
     timecode (``HH:MM:SS:FF``) where the camera wrote one, ``audio_streams`` the number of audio
     streams and ``data_streams`` a description (handler name or codec) of each data stream, e.g.
     ``("GoPro TCD", "GoPro MET", "GoPro SOS")`` for a GoPro's timecode, GPMF telemetry and
@@ -52,6 +54,12 @@ class VideoInfo:
     audio_streams: int = 0
     data_streams: tuple[str, ...] = ()
     truncated: bool = False  # cut short; frame_count and duration are then what is really there
+    hdr: HdrMetadata | None = None
+
+    @property
+    def bit_depth(self) -> int:
+        """Bits per sample of the decoded pictures (8; 10 for a phone's HDR HEVC, ``yuv420p10le``)."""
+        return sample_bits(self.pix_fmt)
 
 
 def probe(path: str | os.PathLike, *, allow_truncated: bool = False) -> VideoInfo:
@@ -158,6 +166,7 @@ def _stream_facts(container, stream, first: av.VideoFrame) -> dict:
     return {
         "colour": colour,
         "pix_fmt": first.format.name,
+        "hdr": HdrMetadata.of(first),
         "timecode": timecode,
         "audio_streams": len(container.streams.audio),
         "data_streams": data,

@@ -20,11 +20,15 @@ from egovid.core.video.orientation import rotate_i420, rotation_of, to_display
 
 #: Frames held back to put a decoder's output into presentation order.
 _REORDER_DEPTH = 4
+#: FFmpeg's planar YUV 4:2:0 pixel format by bits per sample (as :func:`iter_frames` yields them
+#: with ``i420=True`` and :class:`~egovid.core.video.write.VideoWriter` takes them).
+I420_FORMATS = {8: "yuv420p", 10: "yuv420p10le"}
 
 
 @dataclass
 class Frame:
-    """One decoded frame: ``image`` is HxWx3 BGR uint8 (or HxW grey), ``time`` in seconds."""
+    """One decoded frame: ``image`` is HxWx3 BGR uint8 (or HxW grey, or an (H*3/2, W) I420
+    picture: uint8, uint16 at 10 bits), ``time`` in seconds."""
 
     index: int
     time: float
@@ -53,6 +57,7 @@ def iter_frames(
     *,
     gray: bool = False,
     i420: bool = False,
+    bits: int = 8,
     scale: float | None = None,
     max_frames: int | None = None,
 ) -> Iterator[Frame]:
@@ -65,6 +70,9 @@ def iter_frames(
     i420:
         Yield the decoded YUV 4:2:0 picture as one (H*3/2, W) uint8 array (Y, then U, then V),
         without any colour conversion (for re-encoding bit-exactly).
+    bits:
+        Bits per sample of the ``i420`` planes: 8 (uint8), or 10 (uint16 holding 0-1023, FFmpeg's
+        ``yuv420p10le``: a 10-bit video's samples as decoded, an 8-bit one's times 4).
     scale:
         Resize by this factor (0 < scale <= 1) inside FFmpeg's scaler, e.g. 0.5 for half size.
     max_frames:
@@ -78,6 +86,8 @@ def iter_frames(
     """
     if scale is not None and not (0.0 < scale <= 1.0):
         raise EgovidError(f"scale {scale} must be in (0, 1]", "use e.g. 0.5 for half size")
+    if bits not in I420_FORMATS:
+        raise EgovidError(f"{bits} bits per sample are not supported", "use 8 or 10")
     container = open_video(path)
     try:
         stream = container.streams.video[0]
@@ -91,7 +101,7 @@ def iter_frames(
         scaler = VideoReformatter()  # one swscale context for the whole video, not one per frame
         try:
             for frame in _decoded(container, stream, path):
-                img = _picture(frame, gray, i420, scale, scaler)
+                img = _picture(frame, gray, I420_FORMATS[bits] if i420 else None, scale, scaler)
                 pts = frame.pts if frame.pts is not None else frame.dts
                 t = float(pts * tb) if (pts is not None and tb) else decoded * nominal
                 decoded += 1
@@ -114,11 +124,14 @@ def iter_frames(
         container.close()
 
 
-def _picture(frame: av.VideoFrame, gray: bool, i420: bool, scale: float | None, scaler: VideoReformatter) -> np.ndarray:
-    """One decoded frame as :func:`iter_frames` yields its image: pixel format, scale, display
-    orientation. ``scaler`` is reused from frame to frame: ``VideoFrame.to_ndarray(format=...)``
-    would set up a new swscale context (and its threads) for every frame; the pixels are the same."""
-    fmt = "yuv420p" if i420 else ("gray" if gray else "bgr24")
+def _picture(
+    frame: av.VideoFrame, gray: bool, i420: str | None, scale: float | None, scaler: VideoReformatter
+) -> np.ndarray:
+    """One decoded frame as :func:`iter_frames` yields its image: pixel format (``i420``: the
+    4:2:0 format asked for, else grey or BGR), scale, display orientation. ``scaler`` is reused from
+    frame to frame: ``VideoFrame.to_ndarray(format=...)`` would set up a new swscale context (and
+    its threads) for every frame; the pixels are the same."""
+    fmt = i420 or ("gray" if gray else "bgr24")
     if scale is not None and scale != 1.0:
         sw = max(2, round(frame.width * scale))
         sh = max(2, round(frame.height * scale))

@@ -14,10 +14,11 @@ import numpy as np
 
 from egovid.core.errors import EgovidError
 from egovid.core.files import commit_temp, temp_sibling, track_temp, untrack_temp
-from egovid.core.video.colour import ColourTags, bgr_to_i420
+from egovid.core.video.colour import ColourTags, HdrMetadata, bgr_to_i420
 from egovid.core.video.orientation import to_coded
 from egovid.core.video.passthrough import Passthrough
 from egovid.core.video.probe import VideoInfo, probe
+from egovid.core.video.read import I420_FORMATS
 
 
 def _fps_fraction(fps: float) -> Fraction:
@@ -29,9 +30,12 @@ def _fps_fraction(fps: float) -> Fraction:
     return Fraction(fps).limit_denominator(1001)
 
 
-def _encoder_options(codec: str, crf: int | None, preset: str | None, options: dict[str, str] | None) -> dict[str, str]:
+def _encoder_options(
+    codec: str, crf: int | None, preset: str | None, options: dict[str, str] | None, hdr: HdrMetadata | None = None
+) -> dict[str, str]:
     """The encoder's options: ``crf`` and ``preset`` where the codec takes them (VP9 in constant
-    quality mode), then the caller's ``options``."""
+    quality mode), then the caller's ``options``; x265 also gets the HDR10 metadata ``hdr`` and
+    logs errors only."""
     opts: dict[str, str] = {}
     if crf is not None and codec in ("libx264", "libx265", "libvpx-vp9", "libvpx"):
         opts["crf"] = str(crf)
@@ -45,6 +49,10 @@ def _encoder_options(codec: str, crf: int | None, preset: str | None, options: d
         params = opts.get("x264-params", "")
         if "mbtree" not in params:
             opts["x264-params"] = f"{params}:{X264_REPEATABLE}" if params else X264_REPEATABLE
+    if codec == "libx265":
+        params = opts.get("x265-params", "")
+        extra = [p for p in ("" if "log-level" in params else "log-level=error", hdr.x265_params() if hdr else "") if p]
+        opts["x265-params"] = ":".join([params, *extra] if params else extra)
     return opts
 
 
@@ -70,9 +78,14 @@ class VideoWriter:
     Parameters
     ----------
     codec:
-        ``libx264`` (default, MP4), ``ffv1`` (lossless, use an ``.mkv`` path), ``libvpx-vp9``...
+        ``libx264`` (default, MP4), ``libx265`` (HEVC; tagged ``hvc1`` in MP4/MOV, as phones and
+        Apple's players want it), ``ffv1`` (lossless, use an ``.mkv`` path), ``libvpx-vp9``...
     crf:
-        Constant rate factor for x264/VP9 (lower = better quality).
+        Constant rate factor for x264/x265/VP9 (lower = better quality).
+    pix_fmt:
+        The stored pixel format: default ``yuv420p`` (``yuv444p`` for an odd size; ``bgr0`` for
+        FFV1); ``yuv420p10le`` stores 10 bits per sample (:attr:`bits`), e.g. with ``libx265``
+        (HEVC Main10), and takes 10-bit I420 frames in :meth:`write_i420`.
     threads, thread_type:
         Encoder threads (0: as many as FFmpeg picks) and how they split the work: PyAV's default
         ``SLICE``, or ``AUTO`` (frame and slice threads, the ``ffmpeg`` command's default; x264
@@ -89,7 +102,8 @@ class VideoWriter:
         write it as a ``tmcd`` track), every audio stream, and each data stream the output
         container can carry (GoPro GPMF telemetry in MP4/MOV), interleaved by timestamp, shifted
         like the video so that both start at 0. :attr:`kept` and :attr:`dropped` say what was
-        and was not carried over.
+        and was not carried over. A ``libx265`` output also keeps the source's HDR10 mastering-display
+        and content-light metadata (:attr:`VideoInfo.hdr`).
     audio_from:
         A source video whose audio streams (only) are copied.
     metadata_from:
@@ -122,15 +136,17 @@ class VideoWriter:
         if fps <= 0 or not np.isfinite(fps):
             raise EgovidError(f"frame rate {fps} is not positive", "give a frame rate such as 30")
         src_info = probe(keep_from, allow_truncated=True) if keep_from is not None else None
+        self.kept: list[str] = []
+        self.dropped: list[str] = []
         if src_info is not None:
+            if src_info.hdr is not None and codec == "libx265":
+                self.kept.append("HDR10 metadata " + src_info.hdr.x265_params())
             colour = src_info.colour if colour is None else colour
             rotation = src_info.rotation if rotation is None else rotation
         self.colour = colour or ColourTags()
         self.rotation = int(rotation or 0) % 360
         if self.rotation % 90:
             raise EgovidError(f"rotation {rotation}° is not a multiple of 90", "use 0, 90, 180 or 270")
-        self.kept: list[str] = []
-        self.dropped: list[str] = []
         self.width, self.height = int(width), int(height)
         self.fps = float(fps)
         self._tmp = track_temp(temp_sibling(self.path))
@@ -139,7 +155,12 @@ class VideoWriter:
         muxer_opts = {"movflags": "use_metadata_tags"} if keep_from is not None and mov else {}
         self._container = av.open(str(self._tmp), mode="w", options=muxer_opts)
         self._stream = self._add_video_stream(
-            codec, fps, pix_fmt, _encoder_options(codec, crf, preset, options), threads, thread_type
+            codec,
+            fps,
+            pix_fmt,
+            _encoder_options(codec, crf, preset, options, src_info.hdr if src_info is not None else None),
+            threads,
+            thread_type,
         )
         self._count = 0
         self._last_pts = -1
@@ -171,9 +192,13 @@ class VideoWriter:
             if pix_fmt == "yuv420p" and (self.width % 2 or self.height % 2):
                 pix_fmt = "yuv444p"
         stream.pix_fmt = pix_fmt
-        self._i420 = pix_fmt == "yuv420p"
+        self._i420 = pix_fmt in I420_FORMATS.values()
+        #: Bits per sample of the I420 frames :meth:`write_i420` takes (8: uint8, 10: uint16).
+        self.bits = next((b for b, f in I420_FORMATS.items() if f == pix_fmt), 8)
         if self._i420:
             self.colour.apply(stream.codec_context)
+        if codec == "libx265" and self._container.format.name.split(",")[0] in ("mov", "mp4", "m4a"):
+            stream.codec_tag = "hvc1"
         if self.rotation:
             stream.set_display_rotation(self.rotation)
         # A fine time base keeps variable frame timing exactly (1/rate would round it).
@@ -241,7 +266,8 @@ class VideoWriter:
             self._passthrough.feed_until(time)
 
     def write(self, image: np.ndarray, time: float | None = None) -> None:
-        """Append one HxWx3 BGR uint8 frame shown at ``time`` seconds (default: index / fps)."""
+        """Append one HxWx3 BGR uint8 frame shown at ``time`` seconds (default: index / fps); a
+        10-bit writer stores its 8-bit samples times 4."""
         if image.shape[:2] != (self.height, self.width):
             raise EgovidError(
                 f"frame of size {image.shape[1]}x{image.shape[0]} does not match the video's "
@@ -251,7 +277,9 @@ class VideoWriter:
         pts, time = self._next_pts(time)
         if self._i420:
             yuv = to_coded(bgr_to_i420(image, self.colour), self.rotation, True)
-            frame = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
+            if self.bits > 8:
+                yuv = yuv.astype(np.uint16) << (self.bits - 8)
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(yuv), format=I420_FORMATS[self.bits])
         else:
             frame = av.VideoFrame.from_ndarray(
                 np.ascontiguousarray(to_coded(image, self.rotation, False)), format="bgr24"
@@ -259,14 +287,19 @@ class VideoWriter:
         self._encode(frame, pts, time)
 
     def write_i420(self, frame: np.ndarray, time: float | None = None) -> None:
-        """Append one I420 frame ((h*3/2, w) uint8, as decoded) without any colour conversion, so a
-        lossless codec (FFV1, or x264 at ``options={'qp': '0'}``) stores it bit for bit; the
-        planes are read with the writer's :attr:`colour` tags (e.g. full range)."""
-        if frame.shape != (self.height * 3 // 2, self.width) or not self._i420:
-            raise EgovidError("I420 frames need a yuv420p writer of the same size", "check the frame size")
+        """Append one I420 frame ((h*3/2, w) uint8, or uint16 holding 0-1023 for a 10-bit writer:
+        as :func:`~egovid.core.video.read.iter_frames` decodes it with ``bits=self.bits``) without
+        any colour conversion, so a lossless codec (FFV1, or x264 at ``options={'qp': '0'}``) stores
+        it bit for bit; the planes are read with the writer's :attr:`colour` tags (e.g. full range)."""
+        dtype = np.uint8 if self.bits == 8 else np.uint16
+        if frame.shape != (self.height * 3 // 2, self.width) or not self._i420 or frame.dtype != dtype:
+            raise EgovidError(
+                f"I420 frames need a {self.bits}-bit 4:2:0 writer of the same size and sample type",
+                "check the frame size and bit depth",
+            )
         pts, time = self._next_pts(time)
         yuv = np.ascontiguousarray(to_coded(frame, self.rotation, True))
-        self._encode(av.VideoFrame.from_ndarray(yuv, format="yuv420p"), pts, time)
+        self._encode(av.VideoFrame.from_ndarray(yuv, format=I420_FORMATS[self.bits]), pts, time)
 
     def close(self) -> Path:
         """Flush the encoder, finish the file and move it to ``path``."""

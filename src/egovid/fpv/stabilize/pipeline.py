@@ -102,6 +102,7 @@ class StabilizeResult:
             "fpmi_retention_planned": _retention(self.planned_before.pure_fpm_ve, self.planned.pure_fpm_ve),
             "zoom": {"mean": float(zoom.mean()), "max": float(zoom.max())},
             "black_share": self.render.black_share,
+            "bit_depth": self.render.bits,
             "kept_from_input": self.render.kept,
             "not_kept": self.render.dropped,
             "visible_cutoff_hz": self.visible.cutoff_hz if self.visible else None,
@@ -243,6 +244,7 @@ def stabilize(
     model: ViewingModel | None = None,
     opts: OptimizeOptions | None = None,
     crf: int = 18,
+    bit_depth: str = "auto",
     measure: bool = True,
     visible: bool = True,
     horizon_lock: bool = False,
@@ -263,7 +265,10 @@ def stabilize(
     than the path programme's pinhole corners said. ``readout_s`` (seconds, negative: bottom row
     first) is the frame readout of a rolling-shutter sensor: with ``borders="crop"`` every row band
     is then warped from the orientation the camera had when it was read (:func:`row_rotations`),
-    as Gyroflow does. The zoom a lens or rolling shutter needs beyond the plan is never raised
+    as Gyroflow does. ``bit_depth`` (``auto``, ``8``, ``10``) is the output's bits per sample:
+    ``auto`` renders a 10-bit input (a phone's HDR HEVC) to 10-bit HEVC with its colour tags and
+    HDR10 metadata, an 8-bit one to H.264 (:func:`~egovid.fpv.stabilize.render.output_bits`).
+    The zoom a lens or rolling shutter needs beyond the plan is never raised
     above ``max_zoom``; frames that would need more are named in the warnings.
     ``progress(stage, done, total)`` is called with stages ``motion``, ``plan``, ``render`` and
     the measuring stages.
@@ -341,7 +346,7 @@ def stabilize(
         for v, z in zip(views, zoom, strict=True):
             v.zoom = float(z)
         keep = 1.0 / zoom
-        stats = _render_views(src, dst, views, warp, crf, progress)
+        stats = _render_views(src, dst, views, warp, crf, bit_depth, progress)
         if fitted is not None and np.any(zoom > planned_zoom + 1e-9):
             n = int(np.sum(zoom > planned_zoom + 1e-9))
             fitted.notes.append(f"the {_warp_cause(lens, rolling)} needed more zoom than planned on {n} frames")
@@ -359,6 +364,7 @@ def stabilize(
             R_new=R_new,
             intrinsics=intr,
             crf=crf,
+            bit_depth=bit_depth,
             progress=_stage(progress, "render"),
         )
     t3 = time.perf_counter()
@@ -373,6 +379,7 @@ def stabilize(
     t4 = time.perf_counter()
     params = _params(strength, borders, max_zoom, keep_roll, method, intr, opts, model, crf)
     params.update(visible=visible and borders == "crop", horizon_lock=horizon_lock, readout_ms=readout_s * 1000.0)
+    params["bit_depth"] = bit_depth
     seconds = {"motion": t1 - t0, "plan": t2 - t1, "render": t3 - t2, "measure": t4 - t3, "total": t4 - t0}
     return StabilizeResult(
         str(dst), motion.times, angles, plan, path, keep, plans, planned, planned_before, before, after, stats,
@@ -501,12 +508,15 @@ def _render_views(
     views: list[FrameView],
     warp: MeshWarp,
     crf: int,
+    bit_depth: str,
     progress: Callable[[str, int, int], None] | None,
 ) -> RenderStats:
     """Render ``views`` (their zooms set) through ``warp``, one remap per frame; the render's stats."""
     zoom = np.array([v.zoom for v in views])
-    done = render_views(src, dst, views, warp, crf=crf, progress=_stage(progress, "render"))
-    return RenderStats(done.frames, 0.0, float(zoom.mean()), float(zoom.max()), done.seconds, done.kept, done.dropped)
+    done = render_views(src, dst, views, warp, crf=crf, bit_depth=bit_depth, progress=_stage(progress, "render"))
+    return RenderStats(
+        done.frames, 0.0, float(zoom.mean()), float(zoom.max()), done.seconds, done.kept, done.dropped, done.bits
+    )
 
 
 def _params(

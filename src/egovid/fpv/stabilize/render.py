@@ -13,11 +13,12 @@ in its world-to-camera convention), then by the frame's zoom about the image cen
 Frames are warped as decoded, plane by plane (Y at full size, U and V at their 4:2:0 size with the
 same homography re-expressed on the chroma grid), so no colour conversion touches the pixels and
 the colour tags, range, rotation flag, audio and telemetry of the input are kept
-(:class:`egovid.core.video.VideoWriter` ``keep_from``). The content mask of a frame (for the masked
-ITF and the black share) is the warp of an all-ones image by the same homography, computed only
-where a frame can have borders. Frames stream from the decoder to the encoder; the output has the
-same frame count and timestamps, and nothing appears at the target path unless the whole video
-succeeded.
+(:class:`egovid.core.video.VideoWriter` ``keep_from``). A 10-bit input (a phone's HDR HEVC) stays
+10-bit from decoder to encoder (uint16 planes; :func:`output_bits`, :data:`ENCODINGS`). The content
+mask of a frame (for the masked ITF and the black share) is the warp of an all-ones image by the
+same homography, computed only where a frame can have borders. Frames stream from the decoder to
+the encoder; the output has the same frame count and timestamps, and nothing appears at the target
+path unless the whole video succeeded.
 """
 
 from __future__ import annotations
@@ -33,11 +34,33 @@ import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.errors import EgovidError
-from egovid.core.video import Frame, VideoWriter, iter_frames, probe
+from egovid.core.video import Frame, VideoInfo, VideoWriter, iter_frames, probe
 
 BORDERS = ("black", "crop", "fill")
+#: Choices of the output's bits per sample: ``auto`` is the input's (10 for 10 bits and more).
+BIT_DEPTHS = ("auto", "8", "10")
+#: The output's encoder and pixel format by bits per sample: H.264 at 8 bits (as ever); HEVC
+#: Main10 at 10, what phones record 10-bit and HDR video in and what players and phones decode in
+#: hardware (x264's High10 profile would do too, but almost no hardware decodes it).
+ENCODINGS = {8: ("libx264", "yuv420p"), 10: ("libx265", "yuv420p10le")}
 #: Luma -> chroma pixel coordinates of 4:2:0 (chroma sited between luma pixels).
 _TO_CHROMA = np.array([[0.5, 0.0, -0.25], [0.0, 0.5, -0.25], [0.0, 0.0, 1.0]])
+
+
+def output_bits(info: VideoInfo, bit_depth: str | int = "auto") -> int:
+    """Bits per sample of the stabilised output of a video ``info`` (8 or 10): ``bit_depth``, one
+    of :data:`BIT_DEPTHS`; ``auto`` keeps 10 bits where the input has more than 8."""
+    bit_depth = str(bit_depth)
+    if bit_depth not in BIT_DEPTHS:
+        raise EgovidError(f"unknown bit depth {bit_depth!r}", f"choose one of {', '.join(BIT_DEPTHS)}")
+    if bit_depth == "auto":
+        return 10 if info.bit_depth > 8 else 8
+    return int(bit_depth)
+
+
+def black_levels(info: VideoInfo, bits: int) -> tuple[int, int]:
+    """(luma, chroma) sample values of black at ``bits`` per sample in the range of video ``info``."""
+    return (0 if info.colour.full_range else 16) << (bits - 8), 128 << (bits - 8)
 
 
 def homographies(R_old: np.ndarray, R_new: np.ndarray, intr: Intrinsics) -> np.ndarray:
@@ -94,7 +117,7 @@ def covered_share(H: np.ndarray, width: int, height: int, masks: Callable[[int],
 @dataclass
 class RenderStats:
     """Measured while rendering: mean share of black (uncovered) pixels, the per-frame zoom (mean
-    and largest), what was and was not kept from the input."""
+    and largest), what was and was not kept from the input, and the output's bits per sample."""
 
     frames: int
     black_share: float
@@ -103,10 +126,11 @@ class RenderStats:
     seconds: float
     kept: list[str]
     dropped: list[str]
+    bits: int = 8
 
 
 def _warp_i420(img: np.ndarray, H: np.ndarray, w: int, h: int, border: tuple[int, int], mode: int) -> np.ndarray:
-    """Warp one I420 picture ((h*3/2, w) uint8) by the luma homography ``H``."""
+    """Warp one I420 picture ((h*3/2, w) uint8, or uint16 at 10 bits) by the luma homography ``H``."""
     out = np.empty_like(img)
     out[:h] = cv2.warpPerspective(img[:h], H, (w, h), flags=cv2.INTER_LINEAR, borderMode=mode, borderValue=border[0])
     Hc = _TO_CHROMA @ H @ np.linalg.inv(_TO_CHROMA)
@@ -196,10 +220,12 @@ def render_stabilized(
     crf: int = 18,
     preset: str = "veryfast",
     thread_type: str = "AUTO",
+    bit_depth: str | int = "auto",
     progress: Callable[[int, int], None] | None = None,
 ) -> RenderStats:
     """Warp every frame of ``src`` by ``H[k]`` and the zoom ``1/keep[k]``, and encode to ``dst``
-    (atomically, keeping what the camera wrote)."""
+    (atomically, keeping what the camera wrote) at the bits per sample :func:`output_bits` gives
+    for ``bit_depth``, with that depth's encoder (:data:`ENCODINGS`)."""
     if borders not in BORDERS:
         raise EgovidError(f"unknown border mode {borders!r}", f"choose one of {', '.join(BORDERS)}")
     info = probe(src)
@@ -208,7 +234,8 @@ def render_stabilized(
         raise EgovidError(f"{src} is {w}x{h}; the stabiliser needs even dimensions", "crop or scale it by one pixel")
     keep = np.ones(len(H)) if keep is None else np.asarray(keep, dtype=float)
     H = zoom_about_centre(keep, w, h) @ H
-    black = (0 if info.colour.full_range else 16, 128)
+    bits = output_bits(info, bit_depth)
+    black = black_levels(info, bits)
     mode = cv2.BORDER_REFLECT if borders == "fill" else cv2.BORDER_CONSTANT
     masks = content_masks(H, np.ones(len(H)), w, h)  # H already holds the zoom
     mosaic = None
@@ -233,11 +260,15 @@ def render_stabilized(
             progress(k + 1, info.frame_count)
         return out
 
-    frames = iter_frames(src, i420=True)
+    frames = iter_frames(src, i420=True, bits=bits)
+    codec, pix_fmt = ENCODINGS[bits]
     try:
         # Frame threads, as the ffmpeg command gives x264 (PyAV's default is slice threads,
         # about 25 % slower for a whole video at the same settings).
-        with VideoWriter(dst, w, h, info.fps, crf=crf, preset=preset, thread_type=thread_type, keep_from=src) as writer:
+        with VideoWriter(
+            dst, w, h, info.fps, codec=codec, pix_fmt=pix_fmt, crf=crf, preset=preset, thread_type=thread_type,
+            keep_from=src,
+        ) as writer:  # fmt: skip
             n = _pipelined(frames, warp, writer.write_i420)
             if n != len(H):
                 raise EgovidError(
@@ -254,4 +285,5 @@ def render_stabilized(
         time.perf_counter() - t0,
         writer.kept,
         writer.dropped,
+        bits,
     )

@@ -3,7 +3,7 @@
 Three stages run at once on threads (PyAV decodes and encodes, OpenCV remaps, all without the
 GIL): the next frame decodes and the previous one encodes while this one is warped; one job in
 flight per stage keeps the order and bounds memory to a few frames. Frames are warped as decoded
-(I420 planes), the output keeps what the camera wrote (``VideoWriter(keep_from=src)``) and only
+(I420 planes, 10-bit ones as uint16), the output keeps what the camera wrote (``VideoWriter(keep_from=src)``) and only
 appears at ``dst`` when complete.
 """
 
@@ -17,17 +17,20 @@ from dataclasses import dataclass
 
 from egovid.core.errors import EgovidError
 from egovid.core.video import VideoWriter, iter_frames, probe
+from egovid.fpv.stabilize.render import ENCODINGS, black_levels, output_bits
 from egovid.fpv.stabilize.warp import FrameView, MeshWarp
 
 
 @dataclass
 class ViewsRendered:
-    """``frames`` written, ``seconds`` taken, what was ``kept`` from and ``dropped`` of the input."""
+    """``frames`` written, ``seconds`` taken, what was ``kept`` from and ``dropped`` of the input,
+    the output's ``bits`` per sample."""
 
     frames: int
     seconds: float
     kept: list[str]
     dropped: list[str]
+    bits: int = 8
 
 
 def render_views(
@@ -38,22 +41,29 @@ def render_views(
     *,
     crf: int = 18,
     preset: str = "veryfast",
+    bit_depth: str | int = "auto",
     progress: Callable[[int, int], None] | None = None,
 ) -> ViewsRendered:
-    """Write ``dst``: frame k of ``src`` seen as ``views[k]`` (see the module docstring)."""
+    """Write ``dst``: frame k of ``src`` seen as ``views[k]`` (see the module docstring), at the
+    bits per sample :func:`~egovid.fpv.stabilize.render.output_bits` gives for ``bit_depth``."""
     info = probe(src)
     w, h = info.width, info.height
     if w % 2 or h % 2:
         raise EgovidError(f"{src} is {w}x{h}; the stabiliser needs even dimensions", "crop or scale it by one pixel")
-    black = (0 if info.colour.full_range else 16, 128)
+    bits = output_bits(info, bit_depth)
+    black = black_levels(info, bits)
+    codec, pix_fmt = ENCODINGS[bits]
     t0 = time.perf_counter()
     n = 0
-    frames = iter_frames(src, i420=True)
+    frames = iter_frames(src, i420=True, bits=bits)
     stages = ThreadPoolExecutor(max_workers=2, thread_name_prefix="render")
     decoding = stages.submit(next, frames, None)
     encoding: Future | None = None
     try:
-        with VideoWriter(dst, w, h, info.fps, crf=crf, preset=preset, thread_type="AUTO", keep_from=src) as writer:
+        with VideoWriter(
+            dst, w, h, info.fps, codec=codec, pix_fmt=pix_fmt, crf=crf, preset=preset, thread_type="AUTO",
+            keep_from=src,
+        ) as writer:  # fmt: skip
             try:
                 while (frame := decoding.result()) is not None:
                     decoding = stages.submit(next, frames, None)
@@ -81,4 +91,4 @@ def render_views(
     finally:
         stages.shutdown(wait=True)
         frames.close()
-    return ViewsRendered(n, time.perf_counter() - t0, writer.kept, writer.dropped)
+    return ViewsRendered(n, time.perf_counter() - t0, writer.kept, writer.dropped, bits)

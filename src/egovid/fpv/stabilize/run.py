@@ -49,6 +49,7 @@ def stabilize_video(
     method: str = "ve",
     anchor_threshold: float = 0.5,
     crf: int = 18,
+    bit_depth: str = "auto",
     measure: bool = True,
     visible: bool = True,
     horizon_lock: bool = False,
@@ -63,8 +64,8 @@ def stabilize_video(
     The camera motion comes from ``motion``, a motion CSV or a trajectory (one row per frame,
     with the file's intrinsics or ``focal`` pixels / ``hfov`` degrees), else from ``source`` (see
     :func:`~egovid.core.motion.source.camera_motion`). ``strength``, ``borders``, ``max_zoom``,
-    ``keep_roll``, ``method``, ``anchor_threshold`` (degrees), ``crf``, ``measure``, ``visible``
-    and ``horizon_lock`` go to :func:`~egovid.fpv.stabilize.pipeline.stabilize`; the horizon is
+    ``keep_roll``, ``method``, ``anchor_threshold`` (degrees), ``crf``, ``bit_depth``, ``measure``,
+    ``visible`` and ``horizon_lock`` go to :func:`~egovid.fpv.stabilize.pipeline.stabilize`; the horizon is
     levelled against the accelerometer's gravity where the motion came from a synced gyro that
     logged one, else against the path's mean down axis. Writes the motion CSVs of
     :func:`saved_motion_paths` (``save_motion``), the deterministic JSON summary (``json_out``) and
@@ -96,6 +97,7 @@ def stabilize_video(
         method=method,
         opts=OptimizeOptions(anchor_threshold=anchor_threshold, method=method),
         crf=crf,
+        bit_depth=bit_depth,
         measure=measure,
         visible=visible,
         horizon_lock=horizon_lock,

@@ -126,10 +126,10 @@ class MeshWarp:
         return K @ view.R_rows[0].T @ view.R_new @ Ki @ Zi
 
     def warp_i420(self, img: np.ndarray, view: FrameView, border: tuple[int, int] = (0, 128)) -> np.ndarray:
-        """The output I420 picture ((h*3/2, w) uint8) of source picture ``img`` for ``view``. A
-        global-shutter view through a pinhole lens is one homography: ``cv2.warpPerspective`` (half the time of a
-        remap through full-size maps at 1080p, the same map); rows read at their own times go
-        through the mesh."""
+        """The output I420 picture ((h*3/2, w), the dtype of ``img``: uint8, or uint16 at 10 bits)
+        of source picture ``img`` for ``view``. A global-shutter view through a pinhole lens is one
+        homography: ``cv2.warpPerspective`` (half the time of a remap through full-size maps at
+        1080p, the same map); rows read at their own times go through the mesh."""
         w, h = self.w, self.h
         out = np.empty_like(img)
         if len(view.R_rows) == 1 and not self.lens.fisheye:

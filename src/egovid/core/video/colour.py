@@ -138,8 +138,10 @@ class HdrMetadata:
     def of(cls, frame: av.VideoFrame) -> HdrMetadata | None:
         """The metadata of a decoded PyAV frame; None when it has neither kind."""
         display = light = None
-        for kind, data in frame.side_data.items():
-            raw = bytes(data)
+        for entry in frame.side_data:
+            # PyAV 18.1.0 iterates the SideData themselves, 18.1.1 their types (a mapping)
+            data = entry if isinstance(entry, av.sidedata.sidedata.SideData) else frame.side_data[entry]
+            kind, raw = data.type, bytes(data)
             if kind == av.sidedata.sidedata.Type.MASTERING_DISPLAY_METADATA and len(raw) >= 88:
                 # AVMasteringDisplayMetadata: 10 rationals (R, G, B, white xy; min, max luminance),
                 # then has_primaries, has_luminance.

@@ -49,6 +49,7 @@ import av
 import numpy as np
 
 from egovid.core.video import iter_frames
+from egovid.dashcam.codec.av1 import keep_thread_scheduling
 from egovid.dashcam.codec.av1 import packet as owned_packet
 from egovid.dashcam.ingest.options import AV1_DQ, PRESETS
 from egovid.synth.drive import DriveSpec, Light, render_drive
@@ -170,6 +171,8 @@ def plain(frames: list[np.ndarray], codec: str, crf: int, options: dict) -> dict
     cc.time_base, cc.framerate, cc.gop_size = Fraction(1, 30), Fraction(30), REFRESH
     cc.options = {**options, "crf": str(crf)}
     t0 = time.perf_counter()
+    with keep_thread_scheduling():  # as root SVT-AV1 makes this thread real-time, and the ingests it starts
+        cc.open()
     packets = []
     for k, f in enumerate(frames):
         vf = av.VideoFrame.from_ndarray(f, format="yuv420p")

@@ -40,6 +40,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import dashcam_bdrate as bench  # noqa: E402
 from egovid.dashcam.codec import aom  # noqa: E402
+from egovid.dashcam.codec.av1 import keep_thread_scheduling  # noqa: E402
 from egovid.synth.drive import render_drive, simulate  # noqa: E402
 
 QS = (28, 36, 44, 52)  # libaom's quantiser (0-63)
@@ -74,6 +75,8 @@ def svt(frames: list[np.ndarray], crf: int, preset: int, threads: int = 2) -> tu
     cc.width, cc.height, cc.pix_fmt = w, h, "yuv420p"
     cc.time_base, cc.framerate, cc.gop_size = Fraction(1, 30), Fraction(30), RUN
     cc.options = {"preset": str(preset), "crf": str(crf), "svtav1-params": f"irefresh-type=2:lp={threads}"}
+    with keep_thread_scheduling():  # as root SVT-AV1 would make this thread real-time
+        cc.open()
     t0 = time.perf_counter()
     out = []
     for k, f in enumerate(frames):

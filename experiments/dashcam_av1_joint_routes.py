@@ -32,6 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import dashcam_bdrate as bench  # noqa: E402
+from egovid.dashcam.codec.av1 import keep_thread_scheduling  # noqa: E402
 from egovid.synth.drive import render_drive, simulate  # noqa: E402
 
 CRFS = (30, 38, 46, 54)
@@ -43,6 +44,8 @@ def encode(frames: list[np.ndarray], crf: int, gop: int, keys=frozenset()) -> li
     cc.width, cc.height, cc.pix_fmt = w, h, "yuv420p"
     cc.time_base, cc.framerate, cc.gop_size = Fraction(1, 30), Fraction(30), gop
     cc.options = {"preset": "10", "crf": str(crf), "svtav1-params": "irefresh-type=2"}
+    with keep_thread_scheduling():  # as root SVT-AV1 would make this thread real-time
+        cc.open()
     out = []
     for k, f in enumerate(frames):
         vf = av.VideoFrame.from_ndarray(f, format="yuv420p")

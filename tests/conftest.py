@@ -35,6 +35,19 @@ def _hang_watchdog():
     faulthandler.cancel_dump_traceback_later()
 
 
+@pytest.fixture(autouse=True)
+def _normal_priority():
+    """No test leaves its worker's thread at another scheduling policy: SVT-AV1 opened as root
+    made it real-time (SCHED_FIFO 99), and every process the worker started later then starved
+    the machine (docs/dashcam.md). A test that does so fails, and the policy is put back."""
+    before = (os.sched_getscheduler(0), os.sched_getparam(0))
+    yield
+    after = (os.sched_getscheduler(0), os.sched_getparam(0))
+    if after != before:
+        os.sched_setscheduler(0, *before)
+        pytest.fail(f"the test left the thread at scheduling policy {after[0]} ({after[1]}), was {before[0]}")
+
+
 def run_cli(
     *args: str, timeout: float = 600, cwd: str | os.PathLike | None = None, env: dict | None = None
 ) -> subprocess.CompletedProcess:

@@ -47,7 +47,7 @@ import json, resource, sys, time
 import numpy as np
 from egovid.core.rotations import matrix_from_euler
 from egovid.core.video import iter_frames, probe
-from egovid.fpv.stabilize.render import _warp_i420, homographies, zoom_about_centre
+from egovid.fpv.stabilize.render import OutputFormat, _warp_i420, homographies, zoom_about_centre
 from egovid.fpv.stabilize.run import stabilize_video
 src, dst, motion, depth = sys.argv[1:5]
 t = time.perf_counter()
@@ -60,7 +60,7 @@ from egovid.core.camera.resolve import resolve_camera
 intr = resolve_camera(src, None, None).intrinsics
 eul = lambda a: matrix_from_euler(a[:, 0], a[:, 1], a[:, 2])
 H = zoom_about_centre(res.keep, w, h) @ homographies(eul(res.original), eul(res.path), intr)
-black = (16 << 2, 512)
+black = OutputFormat.of(info, 10).black
 se, n = 0.0, 0
 for fin, fout in zip(iter_frames(src, i420=True, bits=10), iter_frames(dst, i420=True, bits=10), strict=True):
     ref = _warp_i420(fin.image, H[fin.index], w, h, black, 0)[:h].astype(np.float64)

@@ -58,9 +58,23 @@ def output_bits(info: VideoInfo, bit_depth: str | int = "auto") -> int:
     return int(bit_depth)
 
 
-def black_levels(info: VideoInfo, bits: int) -> tuple[int, int]:
-    """(luma, chroma) sample values of black at ``bits`` per sample in the range of video ``info``."""
-    return (0 if info.colour.full_range else 16) << (bits - 8), 128 << (bits - 8)
+@dataclass(frozen=True)
+class OutputFormat:
+    """How both renderers decode and store a video: ``bits`` per sample (of the decoded I420
+    planes and the output), the output's ``codec`` and ``pix_fmt`` (:data:`ENCODINGS`), and the
+    (luma, chroma) sample values of ``black`` at those bits in the input's range."""
+
+    bits: int
+    codec: str
+    pix_fmt: str
+    black: tuple[int, int]
+
+    @classmethod
+    def of(cls, info: VideoInfo, bit_depth: str | int = "auto") -> OutputFormat:
+        """The format of the stabilised output of video ``info`` for ``bit_depth`` (:func:`output_bits`)."""
+        bits = output_bits(info, bit_depth)
+        black = ((0 if info.colour.full_range else 16) << (bits - 8), 128 << (bits - 8))
+        return cls(bits, *ENCODINGS[bits], black)
 
 
 def homographies(R_old: np.ndarray, R_new: np.ndarray, intr: Intrinsics) -> np.ndarray:
@@ -234,8 +248,8 @@ def render_stabilized(
         raise EgovidError(f"{src} is {w}x{h}; the stabiliser needs even dimensions", "crop or scale it by one pixel")
     keep = np.ones(len(H)) if keep is None else np.asarray(keep, dtype=float)
     H = zoom_about_centre(keep, w, h) @ H
-    bits = output_bits(info, bit_depth)
-    black = black_levels(info, bits)
+    fmt = OutputFormat.of(info, bit_depth)
+    black = fmt.black
     mode = cv2.BORDER_REFLECT if borders == "fill" else cv2.BORDER_CONSTANT
     masks = content_masks(H, np.ones(len(H)), w, h)  # H already holds the zoom
     mosaic = None
@@ -260,14 +274,13 @@ def render_stabilized(
             progress(k + 1, info.frame_count)
         return out
 
-    frames = iter_frames(src, i420=True, bits=bits)
-    codec, pix_fmt = ENCODINGS[bits]
+    frames = iter_frames(src, i420=True, bits=fmt.bits)
     try:
         # Frame threads, as the ffmpeg command gives x264 (PyAV's default is slice threads,
         # about 25 % slower for a whole video at the same settings).
         with VideoWriter(
-            dst, w, h, info.fps, codec=codec, pix_fmt=pix_fmt, crf=crf, preset=preset, thread_type=thread_type,
-            keep_from=src,
+            dst, w, h, info.fps, codec=fmt.codec, pix_fmt=fmt.pix_fmt, crf=crf, preset=preset,
+            thread_type=thread_type, keep_from=src,
         ) as writer:  # fmt: skip
             n = _pipelined(frames, warp, writer.write_i420)
             if n != len(H):
@@ -285,5 +298,5 @@ def render_stabilized(
         time.perf_counter() - t0,
         writer.kept,
         writer.dropped,
-        bits,
+        fmt.bits,
     )

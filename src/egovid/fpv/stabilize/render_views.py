@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from egovid.core.errors import EgovidError
 from egovid.core.video import VideoWriter, iter_frames, probe
-from egovid.fpv.stabilize.render import ENCODINGS, black_levels, output_bits
+from egovid.fpv.stabilize.render import OutputFormat
 from egovid.fpv.stabilize.warp import FrameView, MeshWarp
 
 
@@ -50,18 +50,16 @@ def render_views(
     w, h = info.width, info.height
     if w % 2 or h % 2:
         raise EgovidError(f"{src} is {w}x{h}; the stabiliser needs even dimensions", "crop or scale it by one pixel")
-    bits = output_bits(info, bit_depth)
-    black = black_levels(info, bits)
-    codec, pix_fmt = ENCODINGS[bits]
+    fmt = OutputFormat.of(info, bit_depth)
     t0 = time.perf_counter()
     n = 0
-    frames = iter_frames(src, i420=True, bits=bits)
+    frames = iter_frames(src, i420=True, bits=fmt.bits)
     stages = ThreadPoolExecutor(max_workers=2, thread_name_prefix="render")
     decoding = stages.submit(next, frames, None)
     encoding: Future | None = None
     try:
         with VideoWriter(
-            dst, w, h, info.fps, codec=codec, pix_fmt=pix_fmt, crf=crf, preset=preset, thread_type="AUTO",
+            dst, w, h, info.fps, codec=fmt.codec, pix_fmt=fmt.pix_fmt, crf=crf, preset=preset, thread_type="AUTO",
             keep_from=src,
         ) as writer:  # fmt: skip
             try:
@@ -73,7 +71,7 @@ def render_views(
                             f"{src} has more frames than its motion ({len(views)})",
                             "re-estimate the motion of this video",
                         )
-                    out = warp.warp_i420(frame.image, views[k], black)
+                    out = warp.warp_i420(frame.image, views[k], fmt.black)
                     if encoding is not None:
                         encoding.result()
                     encoding = stages.submit(writer.write_i420, out, frame.time)
@@ -91,4 +89,4 @@ def render_views(
     finally:
         stages.shutdown(wait=True)
         frames.close()
-    return ViewsRendered(n, time.perf_counter() - t0, writer.kept, writer.dropped, bits)
+    return ViewsRendered(n, time.perf_counter() - t0, writer.kept, writer.dropped, fmt.bits)

@@ -62,6 +62,7 @@ test: $(STAMP)
 	timeout -s INT -k 120 70m $(BIN)/pytest -q -n 2 --dist loadfile --durations=25
 
 bench: $(STAMP)
+	$(BIN)/pip install -q -e '.[dev,bench]'
 	@for b in benchmarks/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 clean:

@@ -16,7 +16,10 @@ Compared, at ≥ 4 quality points each, by BD-rate (bjontegaard, pchip) of PSNR-
 Reported: the new drives (joint candidates) against plain SVT-AV1; the first drives against plain
 SVT-AV1; the whole archive (both drives) against today's VP9 archive; the ingest speed of each
 archive point against the plain SVT-AV1 encode of the same drive timed in the same run (ratios:
-the machine is shared). VMAF: neither PyAV's FFmpeg nor Debian's has libvmaf, so PSNR-Y only.
+the machine is shared). VMAF (vmaf_v0.6.1, every frame) beside PSNR-Y where an ffmpeg with libvmaf
+is at hand (``pip install '.[bench]'``: imageio-ffmpeg's build has it; neither PyAV's FFmpeg nor
+Debian's does): for the new drive against plain SVT-AV1 and the first drive against plain SVT-AV1,
+the archive's drives decoded by ``egovid dashcam extract`` (FFV1), the plain encodes as decoded.
 
 Sets (thesis §16): *near-identical* pairs (the same road minutes apart: same light and parked cars,
 different speed and stops) and *different days* (sun and exposure a little different, other
@@ -54,7 +57,7 @@ from egovid.dashcam.codec.av1 import packet as owned_packet
 from egovid.dashcam.ingest.options import AV1_DQ, PRESETS
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
-from _common import cache_dir, report
+from _common import cache_dir, report, vmaf, vmaf_ffmpeg
 
 QS = tuple(int(v) for v in os.environ.get("EGOVID_BENCH_QS", "24,32,40,48").split(","))
 SVT_CRFS = (30, 38, 46, 54, 62)
@@ -135,10 +138,13 @@ def drive_of(rep: dict) -> dict:
     }
 
 
-def archive_point(ref_video: Path, new_video: Path, preset: str, q: int, codec: str, joint: str = "") -> dict:
+def archive_point(
+    ref_video: Path, new_video: Path, preset: str, q: int, codec: str, joint: str = "", with_vmaf: bool = False
+) -> dict:
     """A fresh archive: ``ingest`` of the older drive, then of the new one, through the CLI
     (``joint``: its ``--joint-codec``, default the preset's); what each piece of the new drive was
-    stored as, and why (read from the catalogue)."""
+    stored as, and why (read from the catalogue); with ``with_vmaf`` each drive's VMAF as
+    ``egovid dashcam extract`` gives it back."""
     from egovid.dashcam.archive.store import Archive
 
     with tempfile.TemporaryDirectory(prefix="egovid-bd-") as tmp:
@@ -151,6 +157,10 @@ def archive_point(ref_video: Path, new_video: Path, preset: str, q: int, codec: 
             args = ("--preset", preset, "--q", q, "--codec", codec, *extra, "--json", js)
             egovid("dashcam", "ingest", root, video, *args)
             out[label] = drive_of(json.loads(js.read_text()))
+        for label, video in (("first", ref_video), ("new", new_video)) if with_vmaf else ():
+            back = Path(tmp) / f"{label}.mkv"
+            egovid("dashcam", "extract", root, video.stem, "-o", back)
+            out[label]["vmaf"] = vmaf(video, back)
         ar = Archive(root)
         try:
             d = ar.catalogue.drive(new_video.stem)
@@ -162,8 +172,9 @@ def archive_point(ref_video: Path, new_video: Path, preset: str, q: int, codec: 
         return out
 
 
-def plain(frames: list[np.ndarray], codec: str, crf: int, options: dict) -> dict:
-    """One drive coded alone by ``codec`` (PyAV), decoded, PSNR-Y against ``frames``; encode fps."""
+def plain(frames: list[np.ndarray], codec: str, crf: int, options: dict, vmaf_of: Path | None = None) -> dict:
+    """One drive coded alone by ``codec`` (PyAV), decoded, PSNR-Y against ``frames``; encode fps;
+    with ``vmaf_of`` (the drive's video file, whose decoded frames are ``frames``) its VMAF."""
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1's banner and configuration at every start otherwise
     h, w = frames[0].shape[0] * 2 // 3, frames[0].shape[1]
     cc = av.CodecContext.create(codec, "w")
@@ -184,16 +195,19 @@ def plain(frames: list[np.ndarray], codec: str, crf: int, options: dict) -> dict
     out = [x.to_ndarray(format="yuv420p") for p in packets for x in dec.decode(owned_packet(p))]
     out += [x.to_ndarray(format="yuv420p") for x in dec.decode(None)]
     se = sum(float(np.sum((a[:h].astype(np.int32) - b[:h]) ** 2)) for a, b in zip(out, frames, strict=True))
-    return {
+    point = {
         "bits": 8 * sum(map(len, packets)),
         "psnr": float(10 * np.log10(255.0**2 * h * w * len(frames) / se)),
         "fps": len(frames) / seconds,
     }
+    if vmaf_of is not None:
+        point["vmaf"] = vmaf(vmaf_of, out, size=(w, h))
+    return point
 
 
-def curve(points: list[dict], key: str = "") -> tuple[list[float], list[float]]:
+def curve(points: list[dict], key: str = "", metric: str = "psnr") -> tuple[list[float], list[float]]:
     pts = [p[key] if key else p for p in points]
-    return [p["bits"] for p in pts], [p["psnr"] for p in pts]
+    return [p["bits"] for p in pts], [p[metric] for p in pts]
 
 
 def together(a: dict, b: dict) -> dict:
@@ -213,6 +227,7 @@ def main() -> None:
     joint = os.environ.get("EGOVID_BENCH_JOINT", "")
     only = [p for p in os.environ.get("EGOVID_BENCH_PAIRS", "").split(",") if p]
     extra = [int(p) for p in os.environ.get("EGOVID_BENCH_SVT_EXTRA", "").split(",") if p]
+    with_vmaf = vmaf_ffmpeg() is not None
     svt = {"preset": str(PRESETS[preset]["av1_speed"]), "svtav1-params": "irefresh-type=2"}
     vp9 = {"deadline": "realtime", "cpu-used": "8", "b": "0", "lag-in-frames": "0", "row-mt": "1"}
     results: dict = {
@@ -221,6 +236,7 @@ def main() -> None:
         "joint_codec": joint or PRESETS[preset]["joint_codec"],
         "load_average_start": os.getloadavg(),
         "today_preset": today if with_vp9 else None,
+        "vmaf": "vmaf_v0.6.1, every frame (libvmaf through imageio-ffmpeg's ffmpeg)" if with_vmaf else None,
         "archive_q": QS,
         "av1_crf": [min(63, q + AV1_DQ) for q in QS],
         "peers": {"svt-av1": {**svt, "crf": SVT_CRFS, "keyint": REFRESH}, "vp9-realtime": {**vp9, "crf": VP9_CRFS}},
@@ -241,12 +257,13 @@ def main() -> None:
                 paths[label] = p
             new_frames = frames_of(paths[name])
             row: dict = {"set": set_name}
-            row["egovid"] = [archive_point(paths["ref"], paths[name], preset, q, "av1", joint) for q in QS]
+            row["egovid"] = [archive_point(paths["ref"], paths[name], preset, q, "av1", joint, with_vmaf) for q in QS]
             if with_vp9:
                 row["egovid-vp9 (today)"] = [
                     archive_point(paths["ref"], paths[name], today, q, "vp9", "vp9") for q in QS
                 ]
-            row["svt-av1"] = [plain(new_frames, "libsvtav1", c, svt) for c in SVT_CRFS]
+            vm_new = paths[name] if with_vmaf else None
+            row["svt-av1"] = [plain(new_frames, "libsvtav1", c, svt, vm_new) for c in SVT_CRFS]
             row["vp9-realtime"] = [plain(new_frames, "libvpx-vp9", c, vp9) for c in VP9_CRFS]
             for p in extra:
                 row[f"svt-av1 preset {p}"] = [
@@ -254,7 +271,8 @@ def main() -> None:
                 ]
             if "ref" not in firsts:
                 ref_frames = frames_of(paths["ref"])
-                firsts["ref"] = [plain(ref_frames, "libsvtav1", c, svt) for c in SVT_CRFS]
+                vm_ref = paths["ref"] if with_vmaf else None
+                firsts["ref"] = [plain(ref_frames, "libsvtav1", c, svt, vm_ref) for c in SVT_CRFS]
             svt_new = curve(row["svt-av1"])
             summary = {
                 "new drive vs plain SVT-AV1 %": bd(*svt_new, *curve(row["egovid"], "new")),
@@ -267,6 +285,13 @@ def main() -> None:
                 "new drive stored as": sorted({s["codec"] for p in row["egovid"] for s in p["new"]["stored"]}),
                 "load average": os.getloadavg()[0],
             }
+            if with_vmaf:
+                summary["new drive vs plain SVT-AV1, VMAF %"] = bd(
+                    *curve(row["svt-av1"], metric="vmaf"), *curve(row["egovid"], "new", "vmaf")
+                )
+                summary["first drive vs plain SVT-AV1, VMAF %"] = bd(
+                    *curve(firsts["ref"], metric="vmaf"), *curve(row["egovid"], "first", "vmaf")
+                )
             ingest_fps = float(np.mean([p["new"]["fps"] for p in row["egovid"]]))
             for p in extra:
                 peer = row[f"svt-av1 preset {p}"]

@@ -61,6 +61,26 @@ def test_translation_with_depth_switches_to_essential_model():
     assert angle_deg(biased.T @ (R_i.T @ R_j)) > 3 * angle_deg(p.Q.T @ (R_i.T @ R_j))
 
 
+def test_walking_past_near_things_keeps_their_parallax_and_recovers_the_turn():
+    """Things 1-3 m away and a camera stepping 4-5 cm per frame (walking indoors): a rotation-only
+    fit of the matches is off by about a degree, and the pairwise estimate keeps the near points'
+    parallax (which a rotation-only selection throws away) and recovers the known rotation, also
+    for a sideways step, whose parallax looks most like a turn."""
+    from egovid.core.motion.pairwise import bearings, correspondences, kabsch
+
+    R_j = matrix_from_euler(0.4, 0.8, -0.3)
+    Kinv = np.linalg.inv(K)
+    for step in ([-0.025, 0.0, 0.045], [-0.04, 0.0, 0.0]):
+        pi, pj = _views(np.eye(3), R_j, np.array(step), depth=(1.0, 3.0), seed=1)
+        rotation_only = kabsch(bearings(pj, Kinv), bearings(pi, Kinv))
+        assert angle_deg(rotation_only.T @ R_j) > 0.5
+        kept = correspondences(pi, pj, K)
+        assert kept is not None and len(kept[0]) > 0.9 * len(pi)  # the near points too
+        p = relative_rotation(pi, pj, K)
+        assert p.ok and p.model == "essential"
+        assert angle_deg(p.Q.T @ R_j) < 0.03
+
+
 def test_too_few_matches_fail_cleanly():
     p = relative_rotation(np.zeros((5, 2)), np.zeros((5, 2)), K)
     assert not p.ok and np.array_equal(p.Q, np.eye(3))

@@ -27,6 +27,7 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import cv2
 import numpy as np
@@ -255,12 +256,15 @@ class _PairScheduler:
         fi, fj = ffi.result(), ffj.result()
         pi, pj = self.matcher(fi, fj)
         images = (fi.image, fj.image) if opts.refine else None
-        found = correspondences(pi, pj, K, threshold_px=opts.threshold_px, images=images)
+        undistort = None
+        if self.distortion is not None:  # a calibrated fisheye lens: select and fit the rays, not the pixels
+            undistort = partial(undistort_fisheye, K=K, distortion=self.distortion)
+        found = correspondences(pi, pj, K, threshold_px=opts.threshold_px, images=images, undistort=undistort)
         if found is None:
             return i, j, PairRotation(np.eye(3), 0, len(pi), "none", False), None
         keep = found if j < opts.keep_matches else None  # raw work pixels (see rolling_shutter.refit_pairs)
-        if self.distortion is not None:  # a calibrated fisheye lens: fit the rays, not the pixels
-            found = (undistort_fisheye(found[0], K, self.distortion), undistort_fisheye(found[1], K, self.distortion))
+        if undistort is not None:
+            found = (undistort(found[0]), undistort(found[1]))
         return i, j, rotation_from_correspondences(*found, K, threshold_px=opts.threshold_px), keep
 
     def _collect(self, results) -> None:

@@ -100,3 +100,24 @@ def test_intrinsics_resolution_order(karma_clip, handheld_clip, tmp_path):
     # Nothing in the file: the default camera, scaled by the long side.
     cam = resolve_camera(handheld_clip)
     assert cam.source == "default" and cam.intrinsics.focal == pytest.approx(830.0)
+
+
+def test_lens_candidates_of_a_file_that_names_no_lens(karma_clip):
+    """The HERO6 clip's re-mux lost its lens mode: resolved from the assumed Wide mode, its
+    candidates are the camera's calibrated lenses at this size (Wide with no EIS, once the picture
+    is known not to be stabilised in the camera; Linear), each with its own fisheye terms, for the
+    gyro to choose from; the Karma clip names its lens (Medium), so it has nothing to choose."""
+    from egovid.core.camera.resolve import lens_candidates, resolve_camera
+
+    from conftest import real_clip
+
+    hero6 = real_clip("gopro-hero6-2s.mp4")
+    tel = read_camera_telemetry(hero6)
+    cam = resolve_camera(hero6, telemetry=tel)
+    assert cam.source == "lens-mode" and not tel.lens_mode
+    found = lens_candidates(hero6, cam, tel, stabilized=False)
+    focal = sorted(round(c.intrinsics.fx, 1) for c in found)
+    assert focal == [387.6, 459.6] and all(c.source == "lens-profile" and any(c.intrinsics.distortion) for c in found)
+    assert lens_candidates(hero6, cam, tel) and all("Wide" not in c.detail for c in lens_candidates(hero6, cam, tel))
+    ktel = read_camera_telemetry(karma_clip)
+    assert lens_candidates(karma_clip, resolve_camera(karma_clip, telemetry=ktel), ktel) == []

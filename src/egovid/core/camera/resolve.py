@@ -13,8 +13,10 @@ JSON says which, and why, under ``intrinsics.source``/``detail``):
    / ``com.android.model``, Apple's ``com.apple.quicktime.make`` / ``.model``), and its main
    camera is taken unless the file names another (Apple's ``com.apple.quicktime.camera.lens_model``);
    the profile is turned by the container's rotation flag as the decoder turns the frames;
-4. (in :mod:`egovid.core.motion.source`, when a gyro is recorded) the focal length fitted from the
-   gyro against the video (``gyro-fit``), which refines only what follows;
+4. (in :mod:`egovid.core.motion.source`, when a gyro is recorded) for a GoPro file that names no
+   lens, the calibrated lens the gyro confirms among the camera's (:func:`lens_candidates`,
+   ``lens-profile``); else the focal length fitted from the gyro against the video
+   (``gyro-fit``), which refines only what follows;
 5. the lens mode the camera recorded (GoPro ``VFOV``: Wide, Medium, Narrow, SuperView, Linear),
    through GoPro's published field of view and an equidistant (fisheye) lens (``lens-mode``); a
    GoPro file that records none is taken as Wide (GoPro's default mode);
@@ -223,6 +225,41 @@ def resolve_camera(
         + (f" ({camera})" if phone is not None else ""),
         rot, readout, readout_from,
     )  # fmt: skip
+
+
+def lens_candidates(
+    video: str | os.PathLike, camera: CameraModel, telemetry: CameraTelemetry, stabilized: bool | None = None
+) -> list[CameraModel]:
+    """The calibrated lenses a camera that names none may have used: one ``lens-profile`` camera per
+    GoPro lens class with a profile for this camera, size and setting (:data:`GOPRO_LENS_HFOV`'s
+    modes with a fisheye model), for a ``camera`` resolved from the lens mode GoPro assumes (Wide)
+    because the file records none (a re-muxed file); ``stabilized`` is whether the camera stabilised
+    the picture where the file does not say (measured: :mod:`egovid.core.motion.eis`; None: unknown,
+    then only profiles that agree among themselves). Empty otherwise: a file that names its lens,
+    or a camera already resolved otherwise, has nothing to choose. Which one the video shows is
+    for the gyro to tell (:func:`egovid.core.motion.source.camera_motion`)."""
+    if camera.source != "lens-mode" or getattr(telemetry, "lens_mode", None):
+        return []
+    info = probe(video)
+    out: list[CameraModel] = []
+    seen: set[tuple[float, tuple[float, ...] | None]] = set()
+    for code in GOPRO_LENS_HFOV:
+        looked = find_profile(
+            telemetry.make, _model_of(telemetry), info.width, info.height, lens=code,
+            stabilized=telemetry.electronically_stabilized if stabilized is None else stabilized, fps=info.fps,
+            rotation=camera.rotation,
+        )  # fmt: skip
+        m = looked.match
+        if m is None or (m.fx, m.distortion) in seen:
+            continue
+        seen.add((m.fx, m.distortion))
+        readout, readout_from = camera.readout_ms, camera.readout_source
+        if readout is None and m.readout_ms:
+            readout, readout_from = m.readout_ms, "the lens profile"
+        intr = Intrinsics(info.width, info.height, m.fx, m.fy, m.cx, m.cy, m.distortion)
+        about = m.to_dict()
+        out.append(CameraModel(intr, "lens-profile", looked.reason, camera.rotation, readout, readout_from, about))
+    return out
 
 
 def phone_camera(tags: dict) -> tuple[str, str, str | None, str] | None:

@@ -8,7 +8,13 @@ Two models compete on the same (sub-pixel refined) matches:
   the principal point (what walking forward in front of a distant scene looks like), which would
   otherwise bias the rotation;
 * **essential** — rotation plus a translation direction, refined jointly by minimising the
-  Sampson epipolar error over the inliers (5 parameters), starting from the rotation model.
+  Sampson epipolar error over the inliers (5 parameters), starting from the rotation model and
+  from a RANSAC five-point essential matrix (the better end is kept).
+
+Both models see the same matches: :func:`correspondences` keeps those a rotation explains and
+those an essential matrix explains (near points under translation), on undistorted points for a
+fisheye lens. Selecting by the rotation alone threw the parallax away, and with it what tells a
+sideways step from a turn (walking indoors past things 1-3 m away: a degree per pair).
 
 The thesis tries the essential matrix first and falls back to the homography when too few points
 survive triangulation. We decide from the other side, which is cheaper and better conditioned:
@@ -25,6 +31,7 @@ is only constrained by points far from the image centre, so it is weaker than ya
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -36,6 +43,12 @@ MIN_INLIERS = 12
 ESSENTIAL_POINTS = 200
 #: Iterations of that refinement at most.
 ESSENTIAL_MAX_ITERATIONS = 15
+#: Degrees from the rotation fit within which a five-point essential matrix may start that
+#: refinement (parallax of walking past things 1-3 m away moves the rotation fit by up to ~2°).
+ESSENTIAL_START_MAX_DEG = 5.0
+#: Share of the robust epipolar cost from the rotation fit's start that the five-point start
+#: must end below to be taken instead.
+ESSENTIAL_SWITCH_COST = 0.5
 
 
 @dataclass
@@ -166,6 +179,34 @@ def _refine_essential(
     return unpack(p)
 
 
+def _soft_l1(r: np.ndarray, scale: float) -> float:
+    """The soft-L1 cost of residuals ``r`` (pixels) at ``scale`` pixels."""
+    return float(np.sum(2.0 * (np.sqrt(1.0 + (r / scale) ** 2) - 1.0)))
+
+
+def _essential_starts(
+    Q: np.ndarray, pi: np.ndarray, pj: np.ndarray, bi: np.ndarray, bj: np.ndarray, K: np.ndarray, threshold_px: float
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Starting points (rotation, unit translation) of the essential refinement: the rotation fit
+    ``Q`` with its best translation, and OpenCV's RANSAC five-point essential matrix (seeded)
+    with the pose its cheirality check picks, where it finds one within
+    :data:`ESSENTIAL_START_MAX_DEG` of ``Q`` (a five-point solution further away is one of its
+    spurious decompositions or a lens the pinhole model misses, not parallax)."""
+    starts = [(Q, _translation_given(Q, bi, bj))]
+    try:
+        cv2.setRNGSeed(12345)
+        E, mask = cv2.findEssentialMat(pj, pi, K, cv2.RANSAC, 0.999, threshold_px, maxIters=500)
+        if E is not None and E.shape == (3, 3):
+            _, R5, t5, _ = cv2.recoverPose(E, pj, pi, K, mask=mask)
+            t5 = t5.ravel()
+            turn = np.degrees(np.linalg.norm(cv2.Rodrigues(Q.T @ R5)[0]))
+            if np.all(np.isfinite(R5)) and np.linalg.norm(t5) > 0 and turn < ESSENTIAL_START_MAX_DEG:
+                starts.append((R5, t5 / np.linalg.norm(t5)))
+    except cv2.error:
+        pass
+    return starts
+
+
 def _information(Q: np.ndarray, bj: np.ndarray, sigma_rad: float) -> np.ndarray:
     """Information of Q for right perturbations, from inlier bearings and angular noise."""
     M = np.eye(3) * len(bj) - bj.T @ bj  # sum (I - b b^T) in camera-j coordinates
@@ -186,7 +227,12 @@ _LK_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
 
 
 def refine_by_prewarp(
-    img_i: np.ndarray, img_j: np.ndarray, pi: np.ndarray, Q: np.ndarray, K: np.ndarray
+    img_i: np.ndarray,
+    img_j: np.ndarray,
+    pi: np.ndarray,
+    Q: np.ndarray,
+    K: np.ndarray,
+    pj: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel correspondences of points ``pi`` (frame i) in frame j.
 
@@ -196,6 +242,11 @@ def refine_by_prewarp(
     ORB keypoints alone sit on whole pixels of their pyramid level; this step cuts the pairwise
     rotation error about five-fold, at distance 5 as at distance 1. Returns empty (0, 2) arrays
     when no point survives.
+
+    ``pj`` (same length as ``pi``, NaN rows allowed) are the matches' own positions in frame j
+    where the rotation does not explain them (parallax of near points under translation): there
+    Lucas-Kanade starts from the match mapped into the warped picture instead of from ``pi``, and
+    the 3 px limit applies to the refinement's step from that start.
     """
     empty = np.zeros((0, 2))
     if len(pi) == 0:
@@ -204,11 +255,17 @@ def refine_by_prewarp(
     h, w = img_i.shape[:2]
     warped = cv2.warpPerspective(img_j, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     p0 = np.ascontiguousarray(pi, np.float32).reshape(-1, 1, 2)
+    start = np.asarray(pi, np.float64).copy()
+    if pj is not None:
+        own = np.all(np.isfinite(pj), axis=1)
+        if own.any():
+            hp = np.column_stack([pj[own], np.ones(int(own.sum()))]) @ H.T
+            start[own] = hp[:, :2] / hp[:, 2:3]
     p1, status, _ = cv2.calcOpticalFlowPyrLK(
         img_i,
         warped,
         p0,
-        p0.copy(),
+        np.ascontiguousarray(start, np.float32).reshape(-1, 1, 2),
         winSize=(15, 15),
         maxLevel=1,
         flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
@@ -217,7 +274,7 @@ def refine_by_prewarp(
     if p1 is None or status is None:
         return empty, empty
     p1 = p1.reshape(-1, 2).astype(np.float64)
-    ok = (status.ravel() == 1) & np.all(np.isfinite(p1), axis=1) & (np.linalg.norm(p1 - pi, axis=1) < 3.0)
+    ok = (status.ravel() == 1) & np.all(np.isfinite(p1), axis=1) & (np.linalg.norm(p1 - start, axis=1) < 3.0)
     margin = 8
     ok &= (p1[:, 0] > margin) & (p1[:, 0] < w - margin) & (p1[:, 1] > margin) & (p1[:, 1] < h - margin)
     back = np.column_stack([p1[ok], np.ones(int(ok.sum()))]) @ np.linalg.inv(H).T
@@ -232,14 +289,22 @@ def correspondences(
     *,
     threshold_px: float = 1.0,
     images: tuple[np.ndarray, np.ndarray] | None = None,
+    undistort: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The matches of a frame pair that a rotation explains, refined to sub-pixel accuracy.
+    """The matches of a frame pair that a rotation, or a rotation and a translation, explains,
+    refined to sub-pixel accuracy.
 
     ``pts_i``, ``pts_j`` (M, 2) matched pixels; a RANSAC homography (seeded: identical results
-    on every run) finds the consistent ones, and with ``images = (grey_i, grey_j)`` they are
-    refined by :func:`refine_by_prewarp`. Returns ``(pi, pj)`` (n, 2) float64 pixels, or None
-    when fewer than :data:`MIN_INLIERS` survive. The result does not depend on ``K`` beyond the
-    pre-warp, so a pair can be re-fitted later with another focal length.
+    on every run) finds the ones a rotation explains, and a RANSAC essential matrix those a
+    translating camera explains (the parallax of near points, which a rotation-only selection
+    throws away: the pair's essential model then never sees what separates rotation from
+    translation, and a walking camera's rotation comes out biased). With ``images = (grey_i,
+    grey_j)`` they are refined by :func:`refine_by_prewarp`. ``undistort`` maps pixels (N, 2) to
+    the pinhole pixels of ``K`` (a fisheye lens): the models are selected on those, while the
+    refinement and the result stay in the pictures' own pixels. Returns ``(pi, pj)`` (n, 2)
+    float64 pixels, or None when fewer than :data:`MIN_INLIERS` survive. The result does not
+    depend on ``K`` beyond the selection and the pre-warp, so a pair can be re-fitted later with
+    another focal length.
     """
     if len(pts_i) < MIN_INLIERS or len(pts_i) != len(pts_j):
         return None
@@ -249,19 +314,48 @@ def correspondences(
     pi, pj = pi[finite], pj[finite]
     if len(pi) < MIN_INLIERS:
         return None
+    ui, uj = (undistort(pi), undistort(pj)) if undistort is not None else (pi, pj)
     cv2.setRNGSeed(12345)
-    Q = _coarse_rotation(pi, pj, K, 2.0 * threshold_px)
+    Q = _coarse_rotation(ui, uj, K, 2.0 * threshold_px)
     if Q is None:
         return None
-    keep = rotation_residuals(Q, pj, pi, K) < 4.0 * threshold_px
+    rot = rotation_residuals(Q, uj, ui, K) < 4.0 * threshold_px
+    keep = rot | _epipolar_inliers(ui, uj, K, threshold_px, rot)
     if keep.sum() < MIN_INLIERS:
         return None
-    pi, pj = pi[keep], pj[keep]
+    pi, pj, rot = pi[keep], pj[keep], rot[keep]
     if images is not None:
-        pi, pj = refine_by_prewarp(images[0], images[1], pi, Q, K)
+        own = np.where(rot[:, None], np.nan, pj)  # parallax matches: LK starts from the match
+        pi, pj = refine_by_prewarp(images[0], images[1], pi, Q, K, own)
         if len(pi) < MIN_INLIERS:
             return None
     return pi, pj
+
+
+#: Matches beyond the rotation's own that an essential matrix must explain to be added at all.
+PARALLAX_MIN_EXTRA = 8
+
+
+def _epipolar_inliers(
+    ui: np.ndarray, uj: np.ndarray, K: np.ndarray, threshold_px: float, rot: np.ndarray
+) -> np.ndarray:
+    """Matches (bool (N,)) a RANSAC essential matrix explains within ``threshold_px``, where it
+    explains at least :data:`PARALLAX_MIN_EXTRA` and 5 % more than the rotation (``rot``): with
+    a pure rotation the essential matrix is degenerate and adds only chance matches, which it
+    must not. All False otherwise."""
+    none = np.zeros(len(ui), bool)
+    if len(ui) - int(rot.sum()) < max(PARALLAX_MIN_EXTRA, 0.05 * rot.sum()):
+        return none
+    try:
+        E, mask = cv2.findEssentialMat(uj, ui, K, cv2.RANSAC, 0.999, threshold_px, maxIters=500)
+    except cv2.error:
+        return none
+    if E is None or mask is None or E.shape[0] < 3:
+        return none
+    ess = mask.ravel().astype(bool)
+    if (ess & ~rot).sum() < max(PARALLAX_MIN_EXTRA, 0.05 * rot.sum()):
+        return none
+    return ess
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -327,12 +421,12 @@ def _residuals_nb(Q: np.ndarray, pj: np.ndarray, pi: np.ndarray, K: np.ndarray, 
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _fit_rotation_zoom(pi, pj, xi, xj, bi, bj, K, K_inv, threshold_px, min_inliers):  # pragma: no cover - numba
+def _fit_rotation_zoom(pi, pj, xi, xj, bi, bj, K, K_inv, threshold_px, min_inliers, Q0):  # pragma: no cover - numba
     """The rotation model of :func:`rotation_from_correspondences` in one compiled call (no GIL,
-    so the pair jobs of two threads run at once): Kabsch on all matches, then three rounds of
-    rotation + zoom on the inliers with a robust noise estimate, and a final fit. Returns
-    (ok, Q, zoom, residuals, inliers)."""
-    Q = _kabsch_nb(bj, bi)
+    so the pair jobs of two threads run at once): from ``Q0`` (3x3; all zeros: Kabsch on all
+    matches), three rounds of rotation + zoom on the inliers with a robust noise estimate, and a
+    final fit. Returns (ok, Q, zoom, residuals, inliers)."""
+    Q = _kabsch_nb(bj, bi) if np.all(Q0 == 0.0) else Q0.copy()
     inl = _residuals_nb(Q, pj, pi, K, K_inv, 1.0) < 2.0 * threshold_px
     zoom = 1.0
     r = np.zeros(pj.shape[0])
@@ -364,7 +458,17 @@ def rotation_from_correspondences(
     bi, bj = bearings(pi, K_inv), bearings(pj, K_inv)
     xi = np.column_stack([pi, np.ones(n)]) @ K_inv.T
     xj = np.column_stack([pj, np.ones(n)]) @ K_inv.T
-    ok, Q, _, r, inl = _fit_rotation_zoom(pi, pj, xi, xj, bi, bj, K, K_inv, float(threshold_px), MIN_INLIERS)
+    thr = float(threshold_px)
+    ok, Q, _, r, inl = _fit_rotation_zoom(pi, pj, xi, xj, bi, bj, K, K_inv, thr, MIN_INLIERS, np.zeros((3, 3)))
+    if not ok or inl.sum() < 0.5 * n:
+        # Near points' parallax pulls a Kabsch fit of all matches off the rotation: start from the
+        # matches a RANSAC homography finds instead, and keep whichever start explains more.
+        cv2.setRNGSeed(12345)
+        Q0 = _coarse_rotation(pi, pj, K, 2.0 * thr)
+        if Q0 is not None:
+            fit = _fit_rotation_zoom(pi, pj, xi, xj, bi, bj, K, K_inv, thr, MIN_INLIERS, Q0)
+            if fit[0] and (not ok or fit[4].sum() > inl.sum()):
+                ok, Q, _, r, inl = fit
     if not ok:
         return _failed(int(inl.sum()), n)
     n_rot = int(inl.sum())
@@ -375,16 +479,30 @@ def rotation_from_correspondences(
     loose = r < 4.0 * threshold_px
     if loose.sum() - n_rot < max(8, 0.05 * n_rot):
         return rot
-    t = _translation_given(Q, bi[loose], bj[loose])
     # The 5-parameter refinement runs on at most ESSENTIAL_POINTS of the loose matches (an even
-    # stride through them, deterministic): it decides the model and starts from the rotation fit,
-    # so a few hundred points suffice, and it was the most expensive step of a pair.
+    # stride through them, deterministic): it decides the model, so a few hundred points suffice,
+    # and it was the most expensive step of a pair. It starts from the rotation fit and from a
+    # RANSAC five-point essential matrix, and keeps the better end: from the rotation fit alone it
+    # can stay in the wrong basin where a sideways step's parallax was taken for a turn (near
+    # points, walking: a degree off at 1-3 m).
     sub = np.flatnonzero(loose)
     sub = sub[np.linspace(0, len(sub) - 1, min(len(sub), ESSENTIAL_POINTS)).astype(int)]
-    try:
-        Qe, te = _refine_essential(Q, t, xi[sub], xj[sub], focal, max(res_rot, 0.05))
-    except (ValueError, np.linalg.LinAlgError):
+    scale = max(res_rot, 0.05)
+    best = None
+    for k, (Q0, t0) in enumerate(_essential_starts(Q, pi[loose], pj[loose], bi[loose], bj[loose], K, threshold_px)):
+        try:
+            Qe, te = _refine_essential(Q0, t0, xi[sub], xj[sub], focal, scale)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        c = _soft_l1(sampson_px(Qe, te, xi[sub], xj[sub], focal), scale)
+        # The five-point start (k > 0) must end clearly better: on an ambiguous pair (a short
+        # baseline, a lens model that is slightly off) both ends fit about as well, and the
+        # rotation fit's is the one the pose graph's other pairs agree with.
+        if best is None or c < (ESSENTIAL_SWITCH_COST if k else 1.0) * best[0]:
+            best = (c, Qe, te)
+    if best is None:
         return rot
+    _, Qe, te = best
     d = np.abs(sampson_px(Qe, te, xi, xj, focal))
     e_inl = d < min(threshold_px, max(4.0 * res_rot, 0.1))
     n_ess = int(e_inl.sum())

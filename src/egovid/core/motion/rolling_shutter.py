@@ -98,7 +98,7 @@ def refit_pairs(pairs, rates: np.ndarray | None, readout_s: float, *, distortion
         for pts, k in ((m[0], i), (m[1], j)):
             pts = np.asarray(pts, float)
             rows = pts[:, 1].copy()
-            if distortion is not None and np.any(distortion):
+            if distortion is not None:  # all k zero: the equidistant fisheye, not a pinhole
                 pts = undistort_fisheye(pts, K, distortion)
             if rates is not None and readout_s:
                 pts = _to_frame_time_rows(pts, rows, K, rates[k], readout_s, h)

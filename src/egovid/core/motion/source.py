@@ -20,8 +20,10 @@ Sources (``--source``):
 
 Each source is a :class:`MotionSource` in the registry :data:`SOURCES` (what it needs, what vision
 measures for it, how its trajectory is solved); :func:`choose_source` resolves a request.
-With a gyro and no ``--focal/--hfov``, the focal length is fitted from the gyro against the
-matched points (:func:`egovid.core.motion.gyro.fit_focal`), and vision is re-fitted with it.
+With a gyro and no ``--focal/--hfov``, a GoPro file that names no lens gets the calibrated lens
+the gyro confirms (:func:`_choose_lens`); otherwise the focal length is fitted from the gyro
+against the matched points (:func:`egovid.core.motion.gyro.fit_focal`), and vision is re-fitted
+with it.
 """
 
 from __future__ import annotations
@@ -33,7 +35,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from egovid.core.camera.resolve import CameraModel, resolve_camera
+from egovid.core.camera.intrinsics import Intrinsics
+from egovid.core.camera.lens_profiles import MAX_SPREAD
+from egovid.core.camera.resolve import CameraModel, lens_candidates, resolve_camera
 from egovid.core.camera.telemetry import CAMM_FORMAT_NAME, CameraTelemetry, read_camera_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.motion import eis
@@ -340,6 +344,8 @@ def camera_motion(
         _sync_sensor(run)
     if run.track is not None and not run.source.orientation:
         _check_picture(run)
+    if run.track is not None and not run.source.orientation and run.pairs.matches and len(run.pairs.times) <= run.keep:
+        _choose_lens(run)
     if run.track is not None and run.camera.source in FITTED_SOURCES and run.pairs.matches:
         _fit_focal(run)
     if run.camera.readout_ms and run.pairs is not None and run.pairs.matches and len(run.pairs.times) <= run.keep:
@@ -475,6 +481,60 @@ def _check_picture(run: _Run) -> None:
         run.vision = solve_motion(
             run.pairs, run.camera.intrinsics, calibrate=run.vopts.calibrate, detail_hz=run.vopts.detail_hz
         )
+
+
+def _choose_lens(run: _Run) -> None:
+    """A camera whose file names no lens (a re-muxed GoPro file) but whose lenses have calibrated
+    profiles (:func:`~egovid.core.camera.resolve.lens_candidates`): vision re-fitted through each
+    lens's profile, distortion included, and the lens whose rotations the synced gyro confirms
+    (the focal-length fit's scale nearest 1, within :data:`MAX_SPREAD`) is used, with its
+    distortion; where none fits, the gyro fit refines the assumed lens mode as before.
+
+    A focal length fitted through the assumed lens's model (equidistant) is not the profile's
+    (its k1..k4 bend the rays differently), so comparing the two numbers picked no lens for the
+    HERO6 walk once vision kept its near points' parallax (436 px fitted, Wide's profile 387.6);
+    each lens judged through its own model does not depend on that."""
+    kept = run.picture is not None and run.picture.verdict == eis.KEPT  # measured: not stabilised in the camera
+    candidates = lens_candidates(run.video, run.camera, run.telemetry, stabilized=False if kept else None)
+    if not candidates:
+        return
+    R_gyro = gyro_mod.frame_rotations(run.track, run.sync, run.vision.trajectory.times)
+    judged = []
+    for cam in candidates:
+        pairs = refit_pairs(
+            replace(run.pairs, work=_work_intrinsics(run.pairs.work, cam.intrinsics)), None, 0.0,
+            distortion=cam.intrinsics.distortion,
+        )  # fmt: skip
+        fit = gyro_mod.fit_focal([(i, j, p.Q) for i, j, p in pairs.pairs if p.ok], R_gyro, cam.intrinsics.focal)
+        if fit.well_posed:
+            judged.append((abs(np.log(fit.scale)), fit, cam, pairs))
+    if not judged:
+        return
+    off, fit, cam, pairs = min(judged, key=lambda x: x[0])
+    if off > np.log1p(MAX_SPREAD):
+        return
+    others = ", ".join(f"{c.intrinsics.focal:.1f} px: {f.scale:.3f}" for _, f, c, _ in judged if c is not cam)
+    run.camera = replace(
+        cam,
+        detail=f"{cam.detail}; the file names no lens: the profile the gyro confirms (vision/gyro "
+        f"{fit.scale:.3f} on {fit.pairs} frame pairs" + (f"; other lenses {others}" if others else "") + ")",
+    )
+    run.pairs = pairs
+    run.vision = solve_motion(
+        run.pairs, run.camera.intrinsics, calibrate=run.vopts.calibrate, detail_hz=run.vopts.detail_hz
+    )
+    run.sync = _sync(run.gyro_track, run.vision, False)
+    run.track = gyro_mod.integrate(run.telemetry.imu, bias=run.sync.bias)
+
+
+def _work_intrinsics(work: Intrinsics, full: Intrinsics) -> Intrinsics:
+    """``full`` (the video's intrinsics) scaled to the picture size of ``work`` (the downscaled
+    copy pairs were measured in), distortion kept."""
+    sx, sy = work.width / full.width, work.height / full.height
+    return Intrinsics(
+        work.width, work.height, full.fx * sx, full.fy * sy, (full.cx + 0.5) * sx - 0.5, (full.cy + 0.5) * sy - 0.5,
+        full.distortion,
+    )  # fmt: skip
 
 
 def _fit_focal(run: _Run) -> None:

@@ -35,7 +35,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from egovid.core.camera.intrinsics import Intrinsics
 from egovid.core.camera.lens_profiles import MAX_SPREAD
 from egovid.core.camera.resolve import CameraModel, lens_candidates, resolve_camera
 from egovid.core.camera.telemetry import CAMM_FORMAT_NAME, CameraTelemetry, read_camera_telemetry
@@ -502,7 +501,7 @@ def _choose_lens(run: _Run) -> None:
     judged = []
     for cam in candidates:
         pairs = refit_pairs(
-            replace(run.pairs, work=_work_intrinsics(run.pairs.work, cam.intrinsics)), None, 0.0,
+            replace(run.pairs, work=cam.intrinsics.scaled(run.pairs.work.width / cam.intrinsics.width)), None, 0.0,
             distortion=cam.intrinsics.distortion,
         )  # fmt: skip
         fit = gyro_mod.fit_focal([(i, j, p.Q) for i, j, p in pairs.pairs if p.ok], R_gyro, cam.intrinsics.focal)
@@ -525,16 +524,6 @@ def _choose_lens(run: _Run) -> None:
     )
     run.sync = _sync(run.gyro_track, run.vision, False)
     run.track = gyro_mod.integrate(run.telemetry.imu, bias=run.sync.bias)
-
-
-def _work_intrinsics(work: Intrinsics, full: Intrinsics) -> Intrinsics:
-    """``full`` (the video's intrinsics) scaled to the picture size of ``work`` (the downscaled
-    copy pairs were measured in), distortion kept."""
-    sx, sy = work.width / full.width, work.height / full.height
-    return Intrinsics(
-        work.width, work.height, full.fx * sx, full.fy * sy, (full.cx + 0.5) * sx - 0.5, (full.cy + 0.5) * sy - 0.5,
-        full.distortion,
-    )  # fmt: skip
 
 
 def _fit_focal(run: _Run) -> None:

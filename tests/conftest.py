@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import faulthandler
+import gc
 import glob
 import os
 import pwd
@@ -61,6 +62,22 @@ def run_cli(
         cwd=cwd,
         env={**cli_env(), **(env or {})},
     )
+
+
+def invoke_cli(args: list, capsys) -> subprocess.CompletedProcess:
+    """Run the CLI with ``args`` in this process through :func:`egovid.cli.run` (the same code
+    path as the ``egovid`` command, minus process start-up and signal handlers), its output caught
+    by pytest's ``capsys``; for commands that end in validation, where a process start (seconds
+    of imports) is not what is tested. Returns what :func:`run_cli` would."""
+    from egovid.cli import run
+    from egovid.core.video.container import forget_accepted_cuts
+
+    forget_accepted_cuts()
+    capsys.readouterr()
+    code = run([str(a) for a in args])
+    gc.collect()  # close what the command left open (an SQLite catalogue's -wal file), as process exit would
+    cap = capsys.readouterr()
+    return subprocess.CompletedProcess(["egovid", *map(str, args)], code, cap.out, cap.err)
 
 
 def cli_env() -> dict[str, str]:

@@ -2,20 +2,16 @@
 
 import json
 import os
-import signal
-import subprocess
-import sys
 
 import av
 import numpy as np
 import pytest
 
-from egovid.core.trajectory import Trajectory, write_motion_csv
 from egovid.core.video import VideoWriter, count_frames, iter_frames
 from egovid.synth import motions
 from egovid.synth.fpv import render_fpv
 
-from conftest import assert_interrupted, assert_one_error, cli_env, partial_output_in, run_cli, wait_until_running
+from conftest import assert_one_error, invoke_cli, run_cli
 
 
 def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
@@ -23,7 +19,8 @@ def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
     src = tmp_path / "with_audio.mp4"
     _add_audio(shaky_clip, src)
     out = tmp_path / "out.mp4"
-    r = run_cli("fpv", "stabilize", src, "-o", out, "--report", tmp_path / "r.html", "--json", tmp_path / "r.json")
+    report = ("--report", tmp_path / "r.html", "--json", tmp_path / "r.json", "--save-motion", tmp_path / "m")
+    r = run_cli("fpv", "stabilize", src, "-o", out, *report)
     assert r.returncode == 0, r.stderr
     assert count_frames(out) == count_frames(src)
     with av.open(str(out)) as c:
@@ -41,18 +38,17 @@ def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
     html = (tmp_path / "r.html").read_text()
     assert "data:image/png;base64," in html and "ITF" in html and "input | output" in html
     # Same input, same options: the same JSON (plan, path and encoding are deterministic; timings
-    # are not in it). Given the motion and without re-measuring, so that the motion estimator's
-    # own determinism is not what is tested here.
-    assert run_cli("fpv", "motion", src, "-o", tmp_path / "m.csv").returncode == 0
+    # are not in it). Given the motion (the input motion the first run estimated and saved) and
+    # without re-measuring, so that the motion estimator's own determinism is not what is tested here.
     runs = []
     for k in range(2):
-        args = ("-o", tmp_path / f"d{k}.mp4", "--motion", tmp_path / "m.csv", "--json", tmp_path / f"d{k}.json")
+        args = ("-o", tmp_path / f"d{k}.mp4", "--motion", tmp_path / "m.input.csv", "--json", tmp_path / f"d{k}.json")
         r = run_cli("fpv", "stabilize", src, *args, "--no-measure")
         assert r.returncode == 0, r.stderr
         runs.append(json.loads((tmp_path / f"d{k}.json").read_text()))
     assert {**runs[0], "output": None} == {**runs[1], "output": None}
     # The horizon lock and a smaller zoom budget, from the command line.
-    args = ("-o", tmp_path / "h.mp4", "--motion", tmp_path / "m.csv", "--json", tmp_path / "h.json")
+    args = ("-o", tmp_path / "h.mp4", "--motion", tmp_path / "m.input.csv", "--json", tmp_path / "h.json")
     r = run_cli("fpv", "stabilize", src, *args, "--no-measure", "--horizon-lock", "--max-zoom", "1.05")
     assert r.returncode == 0, r.stderr
     h = json.loads((tmp_path / "h.json").read_text())
@@ -93,63 +89,21 @@ def _add_audio(video, dst):
     os.replace(out, dst)
 
 
-def test_stabilize_bad_input(tmp_path, still_clip):
+def test_stabilize_bad_input(tmp_path, still_clip, capsys):
+    # Each fails in validation, so in this process (test_fuzz_cli.py runs a sample as real processes).
     out = tmp_path / "o.mp4"
-    assert_one_error(run_cli("fpv", "stabilize", tmp_path / "none.mp4", "-o", out), "not found")
-    assert_one_error(run_cli("fpv", "stabilize", still_clip, "-o", out, "--strength", "3"), "strength")
-    assert_one_error(run_cli("fpv", "stabilize", still_clip, "-o", out, "--borders", "pink"), "border mode")
-    assert_one_error(run_cli("fpv", "stabilize", still_clip, "-o", still_clip), "overwrite the input")
+    assert_one_error(invoke_cli(["fpv", "stabilize", tmp_path / "none.mp4", "-o", out], capsys), "not found")
+    assert_one_error(invoke_cli(["fpv", "stabilize", still_clip, "-o", out, "--strength", "3"], capsys), "strength")
+    bad_borders = ["fpv", "stabilize", still_clip, "-o", out, "--borders", "pink"]
+    assert_one_error(invoke_cli(bad_borders, capsys), "border mode")
+    assert_one_error(invoke_cli(["fpv", "stabilize", still_clip, "-o", still_clip], capsys), "overwrite the input")
     m = tmp_path / "m.csv"
     m.write_text("frame,time,yaw,pitch,roll\n0,0,0,0,0\n1,0.03,0,0,0\n")
-    assert_one_error(run_cli("fpv", "stabilize", still_clip, "-o", out, "--motion", m), "has 2 frames")
+    assert_one_error(invoke_cli(["fpv", "stabilize", still_clip, "-o", out, "--motion", m], capsys), "has 2 frames")
     short = tmp_path / "short.mp4"
-    assert run_cli("synth", "fpv", short, "--frames", "6", "--size", "160x120").returncode == 0
-    assert_one_error(run_cli("fpv", "stabilize", short, "-o", out), "fewer than one scoring window")
+    assert invoke_cli(["synth", "fpv", short, "--frames", "6", "--size", "160x120"], capsys).returncode == 0
+    assert_one_error(invoke_cli(["fpv", "stabilize", short, "-o", out], capsys), "fewer than one scoring window")
     assert not out.exists()
-
-
-@pytest.fixture(scope="module")
-def long_clip(tmp_path_factory):
-    """1280x720, 1800 frames (60 s) of one still picture, with a made-up motion CSV: cheap to
-    write and to plan, but far too long for `fpv stabilize --motion` to render before a signal
-    arrives (600 frames were rendered whole once, on a loaded machine, before the test's poll saw
-    the partial output)."""
-    folder = tmp_path_factory.mktemp("long")
-    clip, n = folder / "long.mp4", 1800
-    y, x = np.mgrid[0:720, 0:1280]
-    picture = np.stack([x % 256, y % 256, (x // 40 + y // 40) % 2 * 255], axis=2).astype(np.uint8)
-    with VideoWriter(clip, 1280, 720, 30) as w:
-        for _ in range(n):
-            w.write(picture)
-    t = np.arange(n) / 30.0
-    angles = np.stack([5 * np.sin(t), 2 * np.sin(2.1 * t), np.zeros(n)], axis=1)
-    write_motion_csv(folder / "long.csv", Trajectory.from_euler(t, angles))
-    return clip, folder / "long.csv"
-
-
-def _start_and_wait_for_render(tmp_path, clip, motion_csv, **kw) -> subprocess.Popen:
-    """Start `fpv stabilize` and return once its output's temporary file exists (rendering is
-    under way); fail loudly if the command ends first or the file never appears."""
-    cmd = [sys.executable, "-m", "egovid", "fpv", "stabilize", str(clip), "-o", str(tmp_path / "o.mp4")]
-    cmd += ["--motion", str(motion_csv), "--no-measure"]
-    proc = subprocess.Popen(cmd, env=cli_env(), **kw)
-    wait_until_running(proc, partial_output_in(tmp_path), "fpv stabilize started writing its output")
-    return proc
-
-
-@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"])
-def test_interrupted_stabilisation_leaves_no_output(tmp_path, long_clip, sig, code):
-    proc = _start_and_wait_for_render(tmp_path, *long_clip, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert_interrupted(proc, sig, code)
-    assert sorted(p.name for p in tmp_path.iterdir()) == [], "output or temporary file left behind"
-
-
-def test_killed_stabilisation_never_leaves_a_partial_output(tmp_path, long_clip):
-    # kill -9 cannot clean up, but the target path never holds a partial video.
-    proc = _start_and_wait_for_render(tmp_path, *long_clip, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    proc.kill()
-    proc.wait()
-    assert not (tmp_path / "o.mp4").exists()
 
 
 def test_same_input_gives_identical_json_on_the_estimated_path(tmp_path):

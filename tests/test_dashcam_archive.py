@@ -49,6 +49,9 @@ def archive(drives, tmp_path_factory):
     reports = {}
     for name in ("a", "b", "c"):
         video, gps, _ = drives[name]
+        # b's saving is asserted: its joint piece's standalone encode runs to the end. (a has no
+        # joint piece; c's may stop its losing encode early, as a user's ingest does.)
+        savings = ["--measure-savings"] if name == "b" else []
         r = run_cli(
             "dashcam",
             "ingest",
@@ -58,7 +61,7 @@ def archive(drives, tmp_path_factory):
             gps,
             "--codec",
             "vp9",
-            "--measure-savings",
+            *savings,
             "--json",
             root.parent / f"{name}.json",
         )

@@ -22,7 +22,7 @@ import pytest
 from egovid.cli import run
 from egovid.synth.fpv import render_fpv
 
-from conftest import assert_one_error, run_cli
+from conftest import assert_one_error, invoke_cli, run_cli
 
 GPX_HEAD = '<?xml version="1.0"?>\n<gpx version="1.0" creator="t"><trk><trkseg>\n'
 GPX_TAIL = "</trkseg></trk></gpx>\n"
@@ -99,18 +99,6 @@ def snapshot(folder: Path) -> dict[str, tuple]:
                 hashlib.sha1(p.read_bytes()).hexdigest(),
             )
     return out
-
-
-def invoke(args: list[str], capsys) -> tuple[int, str, str]:
-    """Run the CLI in this process; returns (exit status, stdout, stderr)."""
-    from egovid.core.video.container import forget_accepted_cuts
-
-    forget_accepted_cuts()
-    capsys.readouterr()
-    code = run([str(a) for a in args])
-    gc.collect()  # close what the command left open (an SQLite catalogue's -wal file), as process exit would
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
 
 
 # (id, arguments relative to the workspace, text the error line must contain)
@@ -366,7 +354,8 @@ def test_bad_input_gets_one_error_and_changes_nothing(ws, case, capsys, monkeypa
     _, args, needle = case
     monkeypatch.chdir(ws)
     before = snapshot(ws)
-    code, out, err = invoke(args.split(), capsys)
+    r = invoke_cli(args.split(), capsys)
+    code, out, err = r.returncode, r.stdout, r.stderr
     lines = [ln for ln in err.splitlines() if ln.startswith("error:")]
     assert code == 2, f"exit {code}\nstdout: {out}\nstderr: {err}"
     assert "Traceback" not in err + out

@@ -31,7 +31,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
 
 #: The shake band (Hz): above intentional motion (walking, panning), below the frame rate's limit.
 BAND_HZ = (2.0, 8.0)
@@ -103,6 +102,8 @@ def band_gain(
         return float("nan"), 0.0
     nperseg = int(max(16, min(round(SEGMENT_S * fps), len(v) // 3)))
     nperseg = min(nperseg, len(v))
+    from scipy import signal  # ~1 s to import: here, so that the motion stage imports it beside its decoding
+
     f, p_gg = signal.welch(g, fs=fps, nperseg=nperseg, axis=0)
     _, p_vg = signal.csd(v, g, fs=fps, nperseg=nperseg, axis=0)
     inband = (f >= band[0]) & (f <= min(band[1], 0.5 * fps))

@@ -152,6 +152,33 @@ def test_bad_files_give_one_clear_error(tmp_path):
         probe(tmp_path)
 
 
+def test_decoding_ahead_decodes_before_it_is_asked_and_stops_on_leaving(tmp_path):
+    import threading
+
+    from egovid.core.video.read import decoding_ahead
+
+    _write_with_av(tmp_path / "ok.mp4", 30)
+    want = list(iter_frames(tmp_path / "ok.mp4", i420=True))
+
+    def readers() -> list[threading.Thread]:
+        return [t for t in threading.enumerate() if t.name == "egovid-read-ahead"]
+
+    with decoding_ahead(tmp_path / "ok.mp4", 8, i420=True) as frames:
+        assert len(readers()) == 1  # decoding before the first frame is asked for
+        got = list(frames)
+    assert not readers()  # the thread ended with the block
+    assert [f.index for f in got] == [f.index for f in want]
+    assert [f.time for f in got] == [f.time for f in want]
+    assert all(np.array_equal(a.image, b.image) for a, b in zip(got, want, strict=True))
+    with decoding_ahead(tmp_path / "ok.mp4", 2) as frames:  # left early: the thread still ends
+        next(frames)
+    assert not readers()
+    (tmp_path / "text.mp4").write_text("this is not a video\n" * 20)
+    with pytest.raises(EgovidError), decoding_ahead(tmp_path / "text.mp4", 2):
+        pass
+    assert not readers()
+
+
 def _packets(path, kind: str, handler: str | None = None) -> list[bytes]:
     with av.open(str(path)) as c:
         streams = [

@@ -14,19 +14,18 @@ from __future__ import annotations
 import hashlib
 import itertools
 import os
-import queue
 import re
-import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, TypeVar
+from typing import Protocol
 
 import numpy as np
 
 from egovid.core.errors import EgovidError
 from egovid.core.video import ColourTags, VideoWriter
+from egovid.core.video.read import read_ahead
 from egovid.dashcam.archive.blobs import BlobStore
 from egovid.dashcam.archive.catalogue import Drive, Segment
 from egovid.dashcam.archive.fleetstore import FleetStore, drive_channels, live_drive
@@ -103,55 +102,6 @@ def _ranged_packets(
         b = min(r1, a + chunk)
         body = blobs.read_range(sha, offsets[a], offsets[b])
         yield from codec.iter_packets(body, 0, runs[b - 1][1] - runs[a][0])
-
-
-T = TypeVar("T")
-
-
-def read_ahead(items: Iterator[T], depth: int) -> Iterator[T]:
-    """``items`` produced by a background thread up to ``depth`` ahead of the consumer: decoders
-    (FFmpeg, libvpx) and OpenCV release the GIL, so decoding overlaps the consumer's own work on
-    another core. An error raised by ``items`` is raised to the consumer when it reaches it;
-    closing the returned generator (or dropping it) stops the thread and closes ``items``."""
-    q: queue.Queue = queue.Queue(depth)
-    stop = threading.Event()
-    end = object()
-
-    def put(item) -> bool:
-        while not stop.is_set():
-            try:
-                q.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
-        return False
-
-    def run() -> None:
-        try:
-            for item in items:
-                if not put((item, None)):
-                    return
-            put((end, None))
-        except BaseException as exc:  # handed to the consumer
-            put((end, exc))
-        finally:
-            close = getattr(items, "close", None)
-            if close is not None:
-                close()
-
-    worker = threading.Thread(target=run, name="egovid-read-ahead", daemon=True)
-    worker.start()
-    try:
-        while True:
-            item, exc = q.get()
-            if item is end:
-                if exc is not None:
-                    raise exc
-                return
-            yield item
-    finally:
-        stop.set()
-        worker.join()
 
 
 class DriveFrames:

@@ -102,7 +102,7 @@ def band_gain(
         return float("nan"), 0.0
     nperseg = int(max(16, min(round(SEGMENT_S * fps), len(v) // 3)))
     nperseg = min(nperseg, len(v))
-    from scipy import signal  # heavy (seconds under load): not at import, which every command start pays
+    from scipy import signal  # ~1 s to import: not at import, which every command start would pay
 
     f, p_gg = signal.welch(g, fs=fps, nperseg=nperseg, axis=0)
     _, p_vg = signal.csd(v, g, fs=fps, nperseg=nperseg, axis=0)

@@ -6,9 +6,12 @@ from __future__ import annotations
 import contextlib
 import heapq
 import os
+import queue
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import av
 import numpy as np
@@ -17,6 +20,8 @@ from av.video.reformatter import VideoReformatter
 from egovid.core.errors import EgovidError
 from egovid.core.video.container import FIX_VIDEO, cut_accepted, ffmpeg_reason, open_video, packet_cut
 from egovid.core.video.orientation import rotate_i420, rotation_of, to_display
+
+T = TypeVar("T")
 
 #: Frames held back to put a decoder's output into presentation order.
 _REORDER_DEPTH = 4
@@ -207,3 +212,69 @@ def count_frames(path: str | os.PathLike) -> int:
         raise EgovidError(f"{path} stops decoding at frame {n} ({ffmpeg_reason(exc)})", FIX_VIDEO) from None
     finally:
         container.close()
+
+
+def read_ahead(items: Iterator[T], depth: int) -> Iterator[T]:
+    """``items`` produced by a background thread up to ``depth`` ahead of the consumer: decoders
+    (FFmpeg, libvpx) and OpenCV release the GIL, so decoding overlaps the consumer's own work on
+    another core. An error raised by ``items`` is raised to the consumer when it reaches it;
+    closing the returned generator (or dropping it) stops the thread and closes ``items``."""
+    q: queue.Queue = queue.Queue(depth)
+    stop = threading.Event()
+    end = object()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def run() -> None:
+        try:
+            for item in items:
+                if not put((item, None)):
+                    return
+            put((end, None))
+        except BaseException as exc:  # handed to the consumer
+            put((end, exc))
+        finally:
+            close = getattr(items, "close", None)
+            if close is not None:
+                close()
+
+    worker = threading.Thread(target=run, name="egovid-read-ahead", daemon=True)
+    worker.start()
+    try:
+        while True:
+            item, exc = q.get()
+            if item is end:
+                if exc is not None:
+                    raise exc
+                return
+            yield item
+    finally:
+        stop.set()
+        worker.join()
+
+
+@contextlib.contextmanager
+def decoding_ahead(path: str | os.PathLike, depth: int, **kwargs) -> Iterator[Iterator[Frame]]:
+    """:func:`iter_frames` of ``path`` (``kwargs`` as there) decoding from now on in a background
+    thread, up to ``depth`` frames ahead of the consumer (:func:`read_ahead`): a caller that needs
+    the frames only after other work (the stabiliser fits its path first) has them decoded
+    meanwhile on another core. An unreadable video raises here, on entry; the decoder stops and
+    its thread ends when the ``with`` block is left."""
+    ahead = read_ahead(iter_frames(path, **kwargs), max(int(depth), 1))
+    try:
+        first = next(ahead, None)  # starts the thread
+        yield iter(()) if first is None else _chain_first(first, ahead)
+    finally:
+        ahead.close()
+
+
+def _chain_first(first: Frame, rest: Iterator[Frame]) -> Iterator[Frame]:
+    yield first
+    yield from rest

@@ -27,7 +27,7 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from typing import TypeVar
 
@@ -42,14 +42,22 @@ from egovid.core.motion.source import CameraMotion
 from egovid.core.rotations import matrix_from_euler, so3_exp
 from egovid.core.side_call import SideCall, can_fork
 from egovid.core.trajectory import Trajectory
-from egovid.core.video import probe
+from egovid.core.video import Frame, probe
+from egovid.core.video.read import decoding_ahead
 from egovid.fpv.perception.model import ViewingModel, from_model_rate, to_model_rate
 from egovid.fpv.perception.score import AXES, check_angles
 from egovid.fpv.stabilize.horizon import down_from_path, lock_horizon
 from egovid.fpv.stabilize.measure import MotionScores, VideoMeasures, measure_video, motion_scores
 from egovid.fpv.stabilize.optimize import AxisPlan, OptimizeOptions, load_kernels, optimize_axis
 from egovid.fpv.stabilize.path import FittedPath, fit_path
-from egovid.fpv.stabilize.render import BORDERS, RenderStats, content_masks, homographies, render_stabilized
+from egovid.fpv.stabilize.render import (
+    BORDERS,
+    OutputFormat,
+    RenderStats,
+    content_masks,
+    homographies,
+    render_stabilized,
+)
 from egovid.fpv.stabilize.render_views import render_views
 from egovid.fpv.stabilize.visible import VisibleTarget, visible_path
 from egovid.fpv.stabilize.warp import FrameView, MeshWarp, required_zoom
@@ -150,6 +158,10 @@ def shake_warnings(
         f"at 480 px width); {hint}"
     ]
 
+
+#: Decoded pictures (bytes) the render may hold ahead of the warp: its decoding starts beside the
+#: path fit (:func:`egovid.core.video.read.decoding_ahead`), which leaves the other core idle.
+DECODE_AHEAD_BYTES = 256 << 20
 
 #: How long the plan waits for the side process's axis beyond the time the main axis took (×, and
 #: at least the seconds below) before it plans that axis itself (:class:`SideCall`).
@@ -297,76 +309,83 @@ def stabilize(
     )
     if horizon_lock:
         plan = lock_horizon(plan, down_world if down_world is not None else down_from_path(angles))
-    fitted = vt = None
-    path, keep = plan, np.ones(len(plan))
-    R_old = matrix_from_euler(angles[:, 0], angles[:, 1], angles[:, 2])
-    rolling = readout_s != 0.0 and len(R_old) >= 2
-    R_rows = warp = lens_zoom = None
-    needs: list[tuple[FittedPath, np.ndarray]] = []  # the lens's zoom need of each path tried
-    if borders == "crop" and (lens.fisheye or rolling):
-        R_rows = row_rotations(motion.times, R_old, readout_s if rolling else 0.0, _sensor_rows(intr, info.rotation))
-        warp = MeshWarp(intr, info.rotation, lens=lens)
-    if borders == "crop":
+    # The render's decoding starts now, on the other core, while the path is fitted (one thread:
+    # the plan's fork is done).
+    bits = OutputFormat.of(info, bit_depth).bits
+    depth = DECODE_AHEAD_BYTES // (info.width * info.height * 3 // 2 * (2 if bits > 8 else 1))
+    with decoding_ahead(src, depth, i420=True, bits=bits) as frames:
+        fitted = vt = None
+        path, keep = plan, np.ones(len(plan))
+        R_old = matrix_from_euler(angles[:, 0], angles[:, 1], angles[:, 2])
+        rolling = readout_s != 0.0 and len(R_old) >= 2
+        R_rows = warp = lens_zoom = None
+        needs: list[tuple[FittedPath, np.ndarray]] = []  # the lens's zoom need of each path tried
+        if borders == "crop" and (lens.fisheye or rolling):
+            rows = _sensor_rows(intr, info.rotation)
+            R_rows = row_rotations(motion.times, R_old, readout_s if rolling else 0.0, rows)
+            warp = MeshWarp(intr, info.rotation, lens=lens)
+        if borders == "crop":
 
-        def fit(budget: float) -> tuple[FittedPath, VisibleTarget | None]:
-            if visible:
-                kw = {"model": model, "anchor_threshold": opts.anchor_threshold}
-                return visible_path(angles, plan, intr, fps, max_zoom=budget, **kw)
-            return fit_path(angles, plan, intr, fps, max_zoom=budget), None
+            def fit(budget: float) -> tuple[FittedPath, VisibleTarget | None]:
+                if visible:
+                    kw = {"model": model, "anchor_threshold": opts.anchor_threshold}
+                    return visible_path(angles, plan, intr, fps, max_zoom=budget, **kw)
+                return fit_path(angles, plan, intr, fps, max_zoom=budget), None
 
-        if warp is not None and lens.fisheye:
+            if warp is not None and lens.fisheye:
 
-            def need_of(f: tuple[FittedPath, VisibleTarget | None]) -> np.ndarray:
-                for tried, need in needs:  # the fits are held: identity is safe
-                    if tried is f[0]:
-                        return need
-                needs.append((f[0], lens_need(warp, f[0].path, R_rows)))
-                return needs[-1][1]
+                def need_of(f: tuple[FittedPath, VisibleTarget | None]) -> np.ndarray:
+                    for tried, need in needs:  # the fits are held: identity is safe
+                        if tried is f[0]:
+                            return need
+                    needs.append((f[0], lens_need(warp, f[0].path, R_rows)))
+                    return needs[-1][1]
 
-            (fitted, vt), budget = lens_budget(fit, need_of, lambda f: 1.0 / f[0].keep, max_zoom)
-            lens_zoom = next((need for tried, need in needs if tried is fitted), None)
-            if budget > max_zoom:
-                fitted.notes.append(
-                    f"the path was planned with a {budget:.3f}x pinhole budget: through the {lens.kind} lens "
-                    f"it needs at most {max_zoom:g}x"
-                )
-        else:
-            fitted, vt = fit(max_zoom)
-        path, keep = fitted.path, fitted.keep
-    t2 = time.perf_counter()
-    R_new = matrix_from_euler(path[:, 0], path[:, 1], path[:, 2])
-    H = homographies(R_old, R_new, intr)
-    render_warnings: list[str] = []
-    if warp is not None and R_rows is not None:
-        views = [FrameView(R_new[k], R_rows[k], 1.0) for k in range(len(R_new))]
-        planned_zoom = 1.0 / keep
-        zoom, render_warnings = view_zooms(
-            warp, views, planned_zoom, max_zoom, _warp_cause(lens, rolling), need=lens_zoom
-        )
-        for v, z in zip(views, zoom, strict=True):
-            v.zoom = float(z)
-        keep = 1.0 / zoom
-        stats = _render_views(src, dst, views, warp, crf, bit_depth, progress)
-        if fitted is not None and np.any(zoom > planned_zoom + 1e-9):
-            n = int(np.sum(zoom > planned_zoom + 1e-9))
-            fitted.notes.append(f"the {_warp_cause(lens, rolling)} needed more zoom than planned on {n} frames")
-    else:
-        if rolling:
-            render_warnings.append(
-                f"the rolling shutter ({readout_s * 1000:g} ms readout) is corrected only with --borders crop"
+                (fitted, vt), budget = lens_budget(fit, need_of, lambda f: 1.0 / f[0].keep, max_zoom)
+                lens_zoom = next((need for tried, need in needs if tried is fitted), None)
+                if budget > max_zoom:
+                    fitted.notes.append(
+                        f"the path was planned with a {budget:.3f}x pinhole budget: through the {lens.kind} lens "
+                        f"it needs at most {max_zoom:g}x"
+                    )
+            else:
+                fitted, vt = fit(max_zoom)
+            path, keep = fitted.path, fitted.keep
+        t2 = time.perf_counter()
+        R_new = matrix_from_euler(path[:, 0], path[:, 1], path[:, 2])
+        H = homographies(R_old, R_new, intr)
+        render_warnings: list[str] = []
+        if warp is not None and R_rows is not None:
+            views = [FrameView(R_new[k], R_rows[k], 1.0) for k in range(len(R_new))]
+            planned_zoom = 1.0 / keep
+            zoom, render_warnings = view_zooms(
+                warp, views, planned_zoom, max_zoom, _warp_cause(lens, rolling), need=lens_zoom
             )
-        stats = render_stabilized(
-            src,
-            dst,
-            H,
-            keep=keep,
-            borders=borders,
-            R_new=R_new,
-            intrinsics=intr,
-            crf=crf,
-            bit_depth=bit_depth,
-            progress=_stage(progress, "render"),
-        )
+            for v, z in zip(views, zoom, strict=True):
+                v.zoom = float(z)
+            keep = 1.0 / zoom
+            stats = _render_views(src, dst, views, warp, crf, bit_depth, progress, frames)
+            if fitted is not None and np.any(zoom > planned_zoom + 1e-9):
+                n = int(np.sum(zoom > planned_zoom + 1e-9))
+                fitted.notes.append(f"the {_warp_cause(lens, rolling)} needed more zoom than planned on {n} frames")
+        else:
+            if rolling:
+                render_warnings.append(
+                    f"the rolling shutter ({readout_s * 1000:g} ms readout) is corrected only with --borders crop"
+                )
+            stats = render_stabilized(
+                src,
+                dst,
+                H,
+                keep=keep,
+                borders=borders,
+                R_new=R_new,
+                intrinsics=intr,
+                crf=crf,
+                bit_depth=bit_depth,
+                progress=_stage(progress, "render"),
+                frames=frames,
+            )
     t3 = time.perf_counter()
     scores = {"model": model, "anchor_threshold": opts.anchor_threshold}
     planned_before = motion_scores(angles, fps, intr, **scores)
@@ -510,10 +529,13 @@ def _render_views(
     crf: int,
     bit_depth: str,
     progress: Callable[[str, int, int], None] | None,
+    frames: Iterator[Frame] | None = None,
 ) -> RenderStats:
     """Render ``views`` (their zooms set) through ``warp``, one remap per frame; the render's stats."""
     zoom = np.array([v.zoom for v in views])
-    done = render_views(src, dst, views, warp, crf=crf, bit_depth=bit_depth, progress=_stage(progress, "render"))
+    done = render_views(
+        src, dst, views, warp, crf=crf, bit_depth=bit_depth, progress=_stage(progress, "render"), frames=frames
+    )
     return RenderStats(
         done.frames, 0.0, float(zoom.mean()), float(zoom.max()), done.seconds, done.kept, done.dropped, done.bits
     )

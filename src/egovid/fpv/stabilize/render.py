@@ -236,10 +236,12 @@ def render_stabilized(
     thread_type: str = "AUTO",
     bit_depth: str | int = "auto",
     progress: Callable[[int, int], None] | None = None,
+    frames: Iterator[Frame] | None = None,
 ) -> RenderStats:
     """Warp every frame of ``src`` by ``H[k]`` and the zoom ``1/keep[k]``, and encode to ``dst``
     (atomically, keeping what the camera wrote) at the bits per sample :func:`output_bits` gives
-    for ``bit_depth``, with that depth's encoder (:data:`ENCODINGS`)."""
+    for ``bit_depth``, with that depth's encoder (:data:`ENCODINGS`). ``frames`` are ``src``'s
+    I420 frames at those bits where the caller decodes them already (else they are decoded here)."""
     if borders not in BORDERS:
         raise EgovidError(f"unknown border mode {borders!r}", f"choose one of {', '.join(BORDERS)}")
     info = probe(src)
@@ -274,7 +276,8 @@ def render_stabilized(
             progress(k + 1, info.frame_count)
         return out
 
-    frames = iter_frames(src, i420=True, bits=fmt.bits)
+    if frames is None:
+        frames = iter_frames(src, i420=True, bits=fmt.bits)
     try:
         # Frame threads, as the ffmpeg command gives x264 (PyAV's default is slice threads,
         # about 25 % slower for a whole video at the same settings).
@@ -288,7 +291,9 @@ def render_stabilized(
                     f"{src} decoded {n} frames but its motion has {len(H)}", "re-estimate the motion of this video"
                 )
     finally:
-        frames.close()
+        close = getattr(frames, "close", None)
+        if close is not None:
+            close()
     zoom = 1.0 / keep
     return RenderStats(
         n,

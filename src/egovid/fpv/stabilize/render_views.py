@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 from egovid.core.errors import EgovidError
-from egovid.core.video import VideoWriter, iter_frames, probe
+from egovid.core.video import Frame, VideoWriter, iter_frames, probe
 from egovid.fpv.stabilize.render import OutputFormat
 from egovid.fpv.stabilize.warp import FrameView, MeshWarp
 
@@ -43,9 +43,11 @@ def render_views(
     preset: str = "veryfast",
     bit_depth: str | int = "auto",
     progress: Callable[[int, int], None] | None = None,
+    frames: Iterator[Frame] | None = None,
 ) -> ViewsRendered:
     """Write ``dst``: frame k of ``src`` seen as ``views[k]`` (see the module docstring), at the
-    bits per sample :func:`~egovid.fpv.stabilize.render.output_bits` gives for ``bit_depth``."""
+    bits per sample :func:`~egovid.fpv.stabilize.render.output_bits` gives for ``bit_depth``.
+    ``frames`` are ``src``'s I420 frames at those bits where the caller decodes them already."""
     info = probe(src)
     w, h = info.width, info.height
     if w % 2 or h % 2:
@@ -53,7 +55,8 @@ def render_views(
     fmt = OutputFormat.of(info, bit_depth)
     t0 = time.perf_counter()
     n = 0
-    frames = iter_frames(src, i420=True, bits=fmt.bits)
+    if frames is None:
+        frames = iter_frames(src, i420=True, bits=fmt.bits)
     stages = ThreadPoolExecutor(max_workers=2, thread_name_prefix="render")
     decoding = stages.submit(next, frames, None)
     encoding: Future | None = None
@@ -88,5 +91,7 @@ def render_views(
                 )
     finally:
         stages.shutdown(wait=True)
-        frames.close()
+        close = getattr(frames, "close", None)
+        if close is not None:
+            close()
     return ViewsRendered(n, time.perf_counter() - t0, writer.kept, writer.dropped, fmt.bits)

@@ -20,16 +20,13 @@ import pytest
 from egovid.cli import run
 from egovid.synth.drive import DriveSpec, render_drive
 
-from conftest import run_cli
+from conftest import invoke_cli, run_cli
 
 
 def invoke(args, capsys) -> tuple[int, str, str]:
     """The CLI in this process: (exit status, stdout, stderr)."""
-    capsys.readouterr()
-    code = run([str(a) for a in args])
-    gc.collect()  # close what the command left open, as process exit would
-    cap = capsys.readouterr()
-    return code, " ".join(cap.out.split()), cap.err  # stdout as one line: Rich wraps at 80 columns here
+    r = invoke_cli(args, capsys)
+    return r.returncode, " ".join(r.stdout.split()), r.stderr  # stdout as one line: Rich wraps at 80 columns here
 
 
 def one_error(code: int, out: str, err: str, *needles: str) -> str:

@@ -17,13 +17,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from egovid.cli import run
 from egovid.core.errors import EgovidError, user_error
 from egovid.core.files import atomic_write_text, output_transaction
 from egovid.core.video import count_frames, iter_frames, probe
 from egovid.synth.fpv import render_fpv
 
-from conftest import assert_interrupted, assert_one_error, cli_env, partial_output_in, run_cli, wait_until_running
+from conftest import (
+    assert_interrupted,
+    assert_one_error,
+    cli_env,
+    invoke_cli,
+    partial_output_in,
+    run_cli,
+    wait_until_running,
+)
 
 
 def _listing(folder: Path) -> list[str]:
@@ -84,9 +91,8 @@ def full_dir():
 
 
 def _invoke(args, capsys) -> tuple[int, str]:
-    capsys.readouterr()
-    code = run([str(a) for a in args])
-    return code, capsys.readouterr().err
+    r = invoke_cli(args, capsys)
+    return r.returncode, r.stderr
 
 
 def _assert_error(code: int, err: str, needle: str) -> None:

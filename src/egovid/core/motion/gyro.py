@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +43,8 @@ MIN_SYNC_R = 0.5
 #: taken for a turn: 10-11 °/s on the HERO6 walk through a pinhole model), which a larger bias
 #: would hide from every comparison and put into the gyro's own trajectory.
 MAX_BIAS_DEG_S = 1.5
+#: Step of the fine offset searches (seconds).
+FINE_STEP_S = 0.0005
 
 
 # --------------------------------------------------------------------------------------------
@@ -259,15 +262,7 @@ def sync_gyro(
     coarse = np.arange(-max_offset_s, max_offset_s + 1e-9, max(0.002, dt / 8))
     scores = np.array([speed_score(d) for d in coarse])
     best = float(coarse[int(np.argmax(scores))])
-    fine = np.arange(best - 0.01, best + 0.01 + 1e-9, 0.0005)
-    fscores = np.array([speed_score(d) for d in fine])
-    k = int(np.argmax(fscores))
-    offset = float(fine[k])
-    if 0 < k < len(fine) - 1:  # parabolic peak
-        y0, y1, y2 = fscores[k - 1 : k + 2]
-        den = y0 - 2 * y1 + y2
-        if den < 0:
-            offset += 0.5 * (y0 - y2) / den * 0.0005
+    offset, _ = _peak(speed_score, np.arange(best - 0.01, best + 0.01 + 1e-9, FINE_STEP_S))
     r_speed = speed_score(offset)
     g = track.mean_rates(t0 + offset, t1 + offset)
     # Axis mapping from the intervals with real motion.
@@ -321,16 +316,23 @@ def _refine_offset(
         vw = np.average(v, axis=0, weights=wts)
         return _corr((m - mw).ravel(), (v - vw).ravel(), np.repeat(wts, 3))
 
-    grid = start + np.arange(-dt, dt + 1e-9, 0.0005)
+    best, top = _peak(score, start + np.arange(-dt, dt + 1e-9, FINE_STEP_S))
+    return best if top > score(start) else start
+
+
+def _peak(score: Callable[[float], float], grid: np.ndarray) -> tuple[float, float]:
+    """Where ``score`` peaks on ``grid`` (offsets in seconds, :data:`FINE_STEP_S` apart): the best
+    grid offset moved to the top of the parabola through it and its two neighbours (where they
+    bend down), and the best grid score."""
     scores = np.array([score(d) for d in grid])
     k = int(np.argmax(scores))
     best = float(grid[k])
-    if 0 < k < len(grid) - 1:  # parabolic peak
+    if 0 < k < len(grid) - 1:
         y0, y1, y2 = scores[k - 1 : k + 2]
         den = y0 - 2 * y1 + y2
         if den < 0:
-            best += 0.5 * (y0 - y2) / den * 0.0005
-    return best if scores[k] > score(start) else start
+            best += 0.5 * (y0 - y2) / den * FINE_STEP_S
+    return best, float(scores[k])
 
 
 def _axes(g: np.ndarray, v: np.ndarray, prior: np.ndarray | None) -> tuple[np.ndarray, bool]:

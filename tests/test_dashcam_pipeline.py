@@ -322,6 +322,48 @@ def test_the_older_drive_read_while_the_baseline_is_chosen_changes_nothing_or_is
     assert left == []  # the older drive's decoder stopped with the read-ahead
 
 
+def test_an_interrupt_while_the_encoders_open_leaves_no_thread_reading_the_older_drive(tmp_path, monkeypatch):
+    """SIGTERM (the CLI raises it as a BaseException) can land after the baseline was chosen and
+    before the producer takes the older drive read ahead for it. The prefetch thread was then left
+    decoding: the ingest's clean-up closed that decoder under it ("generator already executing",
+    an internal error instead of "interrupted") and the interpreter ended the thread inside
+    OpenCV/FFmpeg at exit (abort, exit status -6; seen in a full test run). Now the interrupt
+    comes out as itself and no egovid thread is left."""
+    import threading
+
+    from egovid.dashcam.archive.store import Archive
+    from egovid.dashcam.ingest import ingest_videos
+    from egovid.dashcam.ingest import piece as piece_mod
+    from egovid.synth.drive import DriveSpec, Light, render_drive
+
+    class Stop(BaseException):
+        pass
+
+    noon = Light.preset("noon")
+    leg = [("main", 100.0, 150.0)]
+    for name, spec in {
+        "old": DriveSpec(legs=leg, cruise=10.0, seed=5, light=noon),
+        "new": DriveSpec(legs=leg, cruise=9.0, seed=6, light=noon),
+    }.items():
+        render_drive(spec, tmp_path / f"{name}.mp4", width=160, height=96)
+    ar = Archive.create(tmp_path / "archive")
+    ingest_videos(ar, [tmp_path / "old.mp4"], options=VP9)
+
+    prefetching = []
+
+    def interrupted(self, run, *a, **k):
+        prefetching.append(run.prefetch is not None and run.prefetch.thread.is_alive())
+        raise Stop
+
+    monkeypatch.setattr(piece_mod._Encoders, "__init__", interrupted)
+    before = set(threading.enumerate())
+    with pytest.raises(Stop):
+        ingest_videos(ar, [tmp_path / "new.mp4"], options=VP9)
+    assert prefetching == [True]  # the premise: the older drive was being read when the interrupt came
+    left = [t.name for t in set(threading.enumerate()) - before if t.name.startswith("egovid-") and t.is_alive()]
+    assert left == []
+
+
 def test_the_older_drives_frames_passed_on_the_way_are_kept_not_decoded_again(tmp_path, monkeypatch):
     """A wide search scores every 3rd frame of the older drive and then asks for the ones between:
     each frame is decoded once (they were decoded again from their random-access run), and is the

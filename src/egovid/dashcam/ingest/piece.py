@@ -217,6 +217,14 @@ class _PieceRun:
         if self.ref is not None and self.opts.baseline_align != "none":
             self.align = {"kind": self.opts.baseline_align, "params": []}
 
+    def drop_prefetch(self) -> None:
+        """Stop the prefetch thread and close the older drive it reads, unless the producer took
+        it: an interrupted piece must leave no thread decoding the older drive (the interpreter
+        would end it inside OpenCV or FFmpeg at exit, and closing that decoder under it fails)."""
+        if self.prefetch is not None:
+            self.prefetch.cancel()
+            self.prefetch = None
+
     def _start_prefetch(self) -> None:
         likely = choose_baseline(self.illum_sum / self.illum_n, self.piece.candidates)
         if likely is not None:
@@ -254,7 +262,10 @@ class _PieceRun:
             if self.ref is not None:
                 ref = self.ref
                 m = self._length(ref)
-                self.refs = self.prefetch.take() if self.prefetch is not None else self._open_refs(ref)
+                if self.prefetch is not None:
+                    self.refs, self.prefetch = self.prefetch.take(), None
+                else:
+                    self.refs = self._open_refs(ref)
                 prior = self._prior(ref)
                 speed_ref = np.abs(np.gradient(ref.positions.astype(float)) * ref.fps) if m > 1 else np.zeros(m)
                 aligner = ALIGNERS[self.opts.aligner](
@@ -564,8 +575,12 @@ def encode_piece(
     if piece.candidates and ALIGNERS[opts.aligner].orb_search:
         warm_up()  # while the first frames are decoded for the choice of the baseline
     run.choose()
-    cb = (lambda k: progress("encode", done + k, n_total)) if progress else None
-    encoders = _Encoders(run, opts, fps, size, clock, cb, watch or EncoderWatch())
+    try:
+        cb = (lambda k: progress("encode", done + k, n_total)) if progress else None
+        encoders = _Encoders(run, opts, fps, size, clock, cb, watch or EncoderWatch())
+    except BaseException:  # e.g. SIGTERM while the encoders open: the producer never takes the prefetch
+        run.drop_prefetch()
+        raise
     producer = threading.Thread(
         target=run.produce, args=(encoders.pipes,), name=f"egovid-piece-{piece.index}", daemon=True
     )
@@ -583,6 +598,7 @@ def encode_piece(
         sha = source.blobs.put_chunks(enc.chunks())
         run.tick("store", t0)
     finally:
+        run.drop_prefetch()  # not taken: the producer stopped before its first frame (it is joined by now)
         encoders.close()
     return _encoded(run, opts, enc, sha, kept, why, encoders, alone if run.ref is not None else None, joint, t_start)
 

@@ -574,8 +574,8 @@ def encode_piece(
     run = _PieceRun(source, piece, frames, track, fps, size, opts, clock)
     if piece.candidates and ALIGNERS[opts.aligner].orb_search:
         warm_up()  # while the first frames are decoded for the choice of the baseline
-    run.choose()
     try:
+        run.choose()
         cb = (lambda k: progress("encode", done + k, n_total)) if progress else None
         encoders = _Encoders(run, opts, fps, size, clock, cb, watch or EncoderWatch())
     except BaseException:  # e.g. SIGTERM while the encoders open: the producer never takes the prefetch

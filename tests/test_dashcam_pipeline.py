@@ -264,6 +264,20 @@ def test_read_ahead_keeps_order_hands_errors_on_and_stops_when_closed():
     assert closed.is_set()  # the thread stopped and closed the source before close() returned
 
 
+def _old_and_new_drive(folder) -> None:
+    """old.mp4 and new.mp4 in ``folder``: the same 50 m of road at noon, 160x96, the new drive
+    slower (a joint piece against the old one)."""
+    from egovid.synth.drive import DriveSpec, Light, render_drive
+
+    noon = Light.preset("noon")
+    leg = [("main", 100.0, 150.0)]
+    for name, spec in {
+        "old": DriveSpec(legs=leg, cruise=10.0, seed=5, light=noon),
+        "new": DriveSpec(legs=leg, cruise=9.0, seed=6, light=noon),
+    }.items():
+        render_drive(spec, folder / f"{name}.mp4", width=160, height=96)
+
+
 def test_the_older_drive_read_while_the_baseline_is_chosen_changes_nothing_or_is_dropped(tmp_path, monkeypatch):
     """The older drive the first frame's light points to is decoded (and its features computed)
     while the piece's first 24 frames choose the baseline. Taken: the joint segment is bit for bit
@@ -275,15 +289,8 @@ def test_the_older_drive_read_while_the_baseline_is_chosen_changes_nothing_or_is
     from egovid.dashcam.archive.store import Archive, open_archive
     from egovid.dashcam.ingest import ingest_videos
     from egovid.dashcam.ingest import piece as piece_mod
-    from egovid.synth.drive import DriveSpec, Light, render_drive
 
-    noon = Light.preset("noon")
-    leg = [("main", 100.0, 150.0)]
-    for name, spec in {
-        "old": DriveSpec(legs=leg, cruise=10.0, seed=5, light=noon),
-        "new": DriveSpec(legs=leg, cruise=9.0, seed=6, light=noon),
-    }.items():
-        render_drive(spec, tmp_path / f"{name}.mp4", width=160, height=96)
+    _old_and_new_drive(tmp_path)
     base = tmp_path / "base"
     ingest_videos(Archive.create(base), [tmp_path / "old.mp4"], options=VP9)
 
@@ -334,18 +341,11 @@ def test_an_interrupt_while_the_encoders_open_leaves_no_thread_reading_the_older
     from egovid.dashcam.archive.store import Archive
     from egovid.dashcam.ingest import ingest_videos
     from egovid.dashcam.ingest import piece as piece_mod
-    from egovid.synth.drive import DriveSpec, Light, render_drive
 
     class Stop(BaseException):
         pass
 
-    noon = Light.preset("noon")
-    leg = [("main", 100.0, 150.0)]
-    for name, spec in {
-        "old": DriveSpec(legs=leg, cruise=10.0, seed=5, light=noon),
-        "new": DriveSpec(legs=leg, cruise=9.0, seed=6, light=noon),
-    }.items():
-        render_drive(spec, tmp_path / f"{name}.mp4", width=160, height=96)
+    _old_and_new_drive(tmp_path)
     ar = Archive.create(tmp_path / "archive")
     ingest_videos(ar, [tmp_path / "old.mp4"], options=VP9)
 

@@ -53,7 +53,9 @@ lint: $(STAMP)
 # beside it (2026-12-05, the 2-core machine at load 10-12; 8.0 min for 749 tests when quiet on
 # 2026-12-04, 17.7 min with others' benchmarks at load 20-27). 833 tests: 21.9 min of pytest from a
 # clean clone with ../shared at load 4-5 (2026-12-07), after SVT-AV1's real-time priority was kept
-# out of the test workers (voeval's grid test 515 s -> 43 s, the EIS test 278 s -> 30 s).
+# out of the test workers (voeval's grid test 515 s -> 43 s, the EIS test 278 s -> 30 s). 839 tests:
+# 19.0 min of pytest, 20.7 min for make test from a clean clone with ../shared at load 3.5-4.6
+# (2026-12-08), after the stabiliser's interrupt tests moved to their own file on a short job.
 # --durations names the slowest, so a CI log says where the time went. The whole run is
 # interrupted after 70 minutes (pytest then prints what it has, stacks and summary) so that a hang
 # shows in the log instead of running into CI's 90-minute limit with nothing printed.

@@ -44,7 +44,7 @@ from egovid.core.camera.intrinsics import (
     resolve_intrinsics,
 )
 from egovid.core.camera.lens import EQUIDISTANT, PINHOLE, Lens
-from egovid.core.camera.lens_profiles import find_profile
+from egovid.core.camera.lens_profiles import LensMatch, find_profile
 from egovid.core.camera.telemetry import CameraTelemetry, read_camera_telemetry
 from egovid.core.errors import EgovidError
 from egovid.core.video import probe
@@ -207,12 +207,9 @@ def resolve_camera(
         )  # fmt: skip
     if looked.match is not None:
         m = looked.match
-        if readout is None and m.readout_ms:
-            readout, readout_from = m.readout_ms, "the lens profile"
-        intr = Intrinsics(w, h, m.fx, m.fy, m.cx, m.cy, m.distortion)
         detail = looked.reason if phone is None else f"{camera}: {looked.reason}"
         about = m.to_dict() if phone is None else {**m.to_dict(), "camera": camera}
-        return CameraModel(intr, "lens-profile", detail, rot, readout, readout_from, about)
+        return _profile_camera(m, w, h, detail, rot, readout, readout_from, about)
     if found is not None:
         f, how, fisheye = found
         name = "Wide (assumed: the file records no lens mode)" if assumed else telemetry.lens_name or mode
@@ -253,13 +250,27 @@ def lens_candidates(
         if m is None or (m.fx, m.distortion) in seen:
             continue
         seen.add((m.fx, m.distortion))
-        readout, readout_from = camera.readout_ms, camera.readout_source
-        if readout is None and m.readout_ms:
-            readout, readout_from = m.readout_ms, "the lens profile"
-        intr = Intrinsics(info.width, info.height, m.fx, m.fy, m.cx, m.cy, m.distortion)
-        about = m.to_dict()
-        out.append(CameraModel(intr, "lens-profile", looked.reason, camera.rotation, readout, readout_from, about))
+        w, h, rot = info.width, info.height, camera.rotation
+        out.append(_profile_camera(m, w, h, looked.reason, rot, camera.readout_ms, camera.readout_source, m.to_dict()))
     return out
+
+
+def _profile_camera(
+    m: LensMatch,
+    width: int,
+    height: int,
+    detail: str,
+    rotation: int,
+    readout: float | None,
+    readout_from: str | None,
+    about: dict,
+) -> CameraModel:
+    """The ``lens-profile`` camera of profile match ``m`` for a ``width`` x ``height`` px video:
+    its intrinsics and distortion, and its readout (ms) where the file gave none."""
+    if readout is None and m.readout_ms:
+        readout, readout_from = m.readout_ms, "the lens profile"
+    intr = Intrinsics(width, height, m.fx, m.fy, m.cx, m.cy, m.distortion)
+    return CameraModel(intr, "lens-profile", detail, rotation, readout, readout_from, about)
 
 
 def phone_camera(tags: dict) -> tuple[str, str, str | None, str] | None:

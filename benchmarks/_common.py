@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import time
@@ -64,6 +65,7 @@ def rms(x) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
 
 
+@functools.cache
 def vmaf_ffmpeg() -> str | None:
     """An ``ffmpeg`` with libvmaf, or None: the one imageio-ffmpeg ships (``pip install
     '.[bench]'``; its build has libvmaf and the built-in vmaf_v0.6.1 model), else one on PATH

@@ -188,6 +188,49 @@ def test_visible_layer_smooths_a_pan_and_keeps_a_running_bob(kind):
         assert vt.fpmi_kept >= 0.9
 
 
+@pytest.mark.parametrize(
+    ("hz", "amp", "fitted_hz", "cutoff"), [(5.0, 2.0, [0.5, 4.0], None), (6.0, 1.5, [0.5, 4.0, 1.0, 2.0], 2.0)]
+)
+def test_visible_layer_fits_the_middle_cutoffs_only_when_the_highest_keeps_the_fpmi(
+    monkeypatch, hz, amp, fitted_hz, cutoff
+):
+    """A fast bob (5-6 Hz) is the plan's FPMI: the path is the one that fitting every cutoff in
+    order gives (the lowest whose path keeps the floor, else the plan itself; computed here with
+    the path programme and the scores directly), with the cutoffs between the lowest and the
+    highest fitted only where the highest keeps the floor (on these, the FPMI kept grows with the
+    cutoff: 0, 0, 0.1, 0.1 % and 49, 66, 94, 100 %)."""
+    import egovid.fpv.stabilize.visible as vis
+    from egovid.fpv.stabilize.measure import motion_scores
+
+    intr = Intrinsics.from_hfov(640, 360, 98.3)
+    fps = 30.0
+    t = np.arange(150) / fps
+    a = np.stack([amp * np.sin(2 * np.pi * hz * t), 0.5 * amp * np.sin(2 * np.pi * 0.8 * hz * t), 0 * t], 1)
+
+    def fpmi(x):
+        return 1.0 - motion_scores(x, fps, intr).pure_fpm_ve
+
+    def fit(target):
+        return vis.fit_path(a, target, intr, fps, weights=vis.VISIBLE_WEIGHTS)
+
+    every = [(c, fit(vis.low_pass(a, fps, c))) for c in vis.CUTOFFS_HZ]
+    expected = next((f for c, f in every if fpmi(f.path) / fpmi(a) >= vis.FPMI_FLOOR), None)
+    expected = expected if expected is not None else fit(a)
+    targets = []
+    real_fit = vis.fit_path
+
+    def counted(original, target, *args, **kw):
+        targets.append(target)
+        return real_fit(original, target, *args, **kw)
+
+    monkeypatch.setattr(vis, "fit_path", counted)
+    fitted, vt = vis.visible_path(a, a, intr, fps)
+    assert vt.cutoff_hz == cutoff
+    assert np.array_equal(fitted.path, expected.path) and np.array_equal(fitted.keep, expected.keep)
+    tried = [next((c for c in vis.CUTOFFS_HZ if np.array_equal(x, vis.low_pass(a, fps, c))), None) for x in targets]
+    assert tried == fitted_hz + ([None] if cutoff is None else [])
+
+
 def test_visible_layer_gives_back_the_first_person_motion_a_plan_reduced():
     """A slow look around (0.4 Hz, 4°) with shake: a plan that halved the swings keeps well under
     90 % of the input's FPMI; the visible layer gives the swings back (checked independently on

@@ -77,6 +77,7 @@ def main() -> None:
     ap.add_argument("clip")
     ap.add_argument("out")
     ap.add_argument("--dt", type=float, default=0.25)
+    ap.add_argument("--threads", action="store_true", help="also the CPU of each Python thread (by name) per bin")
     args = ap.parse_args()
     t_imports = now()
     import egovid.cli as cli
@@ -104,6 +105,7 @@ def main() -> None:
     stamped(pl, "render_stabilized", "render")
     stamped(pl, "_render_views", "render")
     names: dict[str, str] = {}
+    py_names: dict[str, str] = {}  # Python thread names, for --threads
     samples: list[tuple[float, dict[str, float]]] = []
     stop = threading.Event()
 
@@ -112,6 +114,7 @@ def main() -> None:
             for th in threading.enumerate():
                 if th.native_id is not None:
                     names.setdefault(f"t{th.native_id}", "main" if th is threading.main_thread() else "py")
+                    py_names.setdefault(f"t{th.native_id}", th.name.split("_")[0])
             samples.append((now(), sample()))
             stop.wait(args.dt)
 
@@ -139,6 +142,12 @@ def main() -> None:
         for k in part:
             total[k] += part[k]
         at = [label for label, a, b in stages if a <= t1 and b >= t0]
+        if args.threads:
+            by: dict[str, float] = {}
+            for k, v in s1.items():
+                if k in py_names and names.get(k) == "py":
+                    by[py_names[k]] = by.get(py_names[k], 0.0) + max(v - s0.get(k, 0.0), 0.0)
+            at.append(" ".join(f"{n}:{c / dt:.2f}" for n, c in by.items() if c > 0))
         print(
             f"{t1:7.2f}  {sum(part.values()) / dt:4.2f}  {part['main'] / dt:4.2f}  {part['py'] / dt:4.2f}"
             f"        {part['native'] / dt:4.2f}            {','.join(dict.fromkeys(at))}"

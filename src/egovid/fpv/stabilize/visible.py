@@ -103,9 +103,9 @@ def visible_path(
     """The rendered path and zoom below ``plan`` (both (K, 3) degrees per frame at ``fps``, with
     the recorded ``original``): the plan low-passed at the lowest cutoff of :data:`CUTOFFS_HZ`
     whose path, bent into ``max_zoom`` by the path programme with :data:`VISIBLE_WEIGHTS`, still
-    keeps ``fpmi_floor`` of the plan's FPMI (those between the lowest and the highest are fitted
-    only when the highest keeps it: module docstring) (the crop may not let the path follow the low-passed
-    plan: a pan at the clip's end, so the check is on the path, not the target); the plan itself
+    keeps ``fpmi_floor`` of the plan's FPMI (the crop may not let the path follow the low-passed
+    plan: a pan at the clip's end, so the check is on the path, not the target; the cutoffs between
+    the lowest and the highest are fitted only when the highest keeps it, module docstring); the plan itself
     with those weights when no cutoff does. When that path keeps less than ``fpmi_floor`` +
     :data:`FPMI_MARGIN` of the input's FPMI, the plan with its reduced anchor amplitude given back,
     low-passed at :data:`RESTORE_CUTOFFS_HZ`, is used instead where its path keeps that much

@@ -64,20 +64,52 @@ def run_cli(
     )
 
 
-def invoke_cli(args: list, capsys) -> subprocess.CompletedProcess:
+def invoke_cli(args: list, capsys=None) -> subprocess.CompletedProcess:
     """Run the CLI with ``args`` in this process through :func:`egovid.cli.run` (the same code
     path as the ``egovid`` command, minus process start-up and signal handlers), its output caught
     by pytest's ``capsys``; for commands that end in validation, where a process start (seconds
-    of imports) is not what is tested. Returns what :func:`run_cli` would."""
+    of imports) is not what is tested, and for runs that share work in this process
+    (:func:`shared_vision_pairs`). Without ``capsys`` (a module-scoped fixture has none) the output
+    goes to pytest's own capture and the result's stdout and stderr are empty. Returns what
+    :func:`run_cli` would."""
     from egovid.cli import run
     from egovid.core.video.container import forget_accepted_cuts
 
     forget_accepted_cuts()
-    capsys.readouterr()
+    if capsys is not None:
+        capsys.readouterr()
     code = run([str(a) for a in args])
     gc.collect()  # close what the command left open (an SQLite catalogue's -wal file), as process exit would
-    cap = capsys.readouterr()
-    return subprocess.CompletedProcess(["egovid", *map(str, args)], code, cap.out, cap.err)
+    out, err = capsys.readouterr() if capsys is not None else ("", "")
+    return subprocess.CompletedProcess(["egovid", *map(str, args)], code, out, err)
+
+
+@pytest.fixture(scope="module")
+def shared_vision_pairs():
+    """Within one test module, :func:`egovid.core.motion.source.camera_motion` measures the frame
+    pairs of a video once per exact input: the file (path, size, modification time), the
+    intrinsics and the options of :func:`egovid.core.motion.estimate.collect_pairs` (its
+    ``progress`` callback aside, which does not change what it measures). Every motion source
+    decodes the whole clip and measures the same pairs before it differs (vision, auto, fused,
+    the stabiliser's own run): the tests of one real clip need that minute once, not four times.
+    The real function runs for every new input, and its :class:`PairSet` is never modified in
+    place by its users (they build new ones). Yields the ``{key: PairSet}`` memo, so that a test
+    can show that the sharing took place."""
+    from egovid.core.motion import source
+
+    real = source.collect_pairs
+    memo: dict[tuple, object] = {}
+
+    def collect_pairs(video, intrinsics=None, options=None, progress=None):
+        st = os.stat(video)
+        key = (os.path.realpath(video), st.st_size, st.st_mtime_ns, repr(intrinsics), repr(options))
+        if key not in memo:
+            memo[key] = real(video, intrinsics, options, progress)
+        return memo[key]
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(source, "collect_pairs", collect_pairs)
+        yield memo
 
 
 def cli_env() -> dict[str, str]:

@@ -7,7 +7,7 @@ import numpy as np
 from egovid.core.trajectory import Trajectory, write_motion_csv
 from egovid.synth import motions
 
-from conftest import assert_one_error, run_cli
+from conftest import assert_one_error, invoke_cli, run_cli
 
 
 def test_score_video_all_methods_json_and_plot(shaky_clip, tmp_path):
@@ -29,14 +29,16 @@ def test_score_motion_csv(tmp_path):
     assert json.loads((tmp_path / "o.json").read_text())["results"]["ve"]["score"] > 0.5
 
 
-def test_score_bad_motion_files(tmp_path):
+def test_score_bad_motion_files(tmp_path, capsys):
+    # Each fails in validation, so in this process (test_fuzz_cli.py runs a sample as real processes).
+    cli = lambda *args: invoke_cli(list(args), capsys)  # noqa: E731
     p = tmp_path / "m.csv"
     p.write_text("frame,time,yaw,pitch\n0,0,0,0\n")
-    assert_one_error(run_cli("fpv", "score", "--motion", p), "lacks column")
+    assert_one_error(cli("fpv", "score", "--motion", p), "lacks column")
     p.write_text("frame,time,yaw,pitch,roll\n" + "".join(f"{i},{i / 30},0,nan,0\n" for i in range(40)))
-    assert_one_error(run_cli("fpv", "score", "--motion", p), "NaN")
+    assert_one_error(cli("fpv", "score", "--motion", p), "NaN")
     p.write_text("frame,time,yaw,pitch,roll\n" + "".join(f"{i},{i / 30},0,0,0\n" for i in range(6)))
-    assert_one_error(run_cli("fpv", "score", "--motion", p), "fewer than one scoring window")
-    assert_one_error(run_cli("fpv", "score", "--motion", p, "--method", "ve2d"), "needs the video")
-    assert_one_error(run_cli("fpv", "score"), "either a VIDEO or --motion")
-    assert_one_error(run_cli("fpv", "score", "--motion", p, "--bias", "0.5"), "bias")
+    assert_one_error(cli("fpv", "score", "--motion", p), "fewer than one scoring window")
+    assert_one_error(cli("fpv", "score", "--motion", p, "--method", "ve2d"), "needs the video")
+    assert_one_error(cli("fpv", "score"), "either a VIDEO or --motion")
+    assert_one_error(cli("fpv", "score", "--motion", p, "--bias", "0.5"), "bias")

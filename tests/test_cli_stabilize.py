@@ -14,18 +14,40 @@ from egovid.synth.fpv import render_fpv
 from conftest import assert_one_error, invoke_cli, run_cli
 
 
-def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
-    # Give the clip an audio track: the output must carry it through.
-    src = tmp_path / "with_audio.mp4"
-    _add_audio(shaky_clip, src)
-    out = tmp_path / "out.mp4"
-    report = ("--report", tmp_path / "r.html", "--json", tmp_path / "r.json", "--save-motion", tmp_path / "m")
-    r = run_cli("fpv", "stabilize", src, "-o", out, *report)
+@pytest.fixture(scope="module")
+def small_clip(tmp_path_factory):
+    """320x180, 60 frames of running motion with roll, shake and sensor noise, with an audio track
+    (the output must carry it through)."""
+    d = tmp_path_factory.mktemp("small")
+    angles = motions.running(60, 8.0, 2.0, 24.0, roll_amp=1.5) + motions.jitter(60, (0.1, 0.1, 0.1), seed=5)
+    render_fpv(d / "small.mp4", angles, width=320, height=180, noise_std=2.0, seed=5)
+    _add_audio(d / "small.mp4", d / "with_audio.mp4")
+    return d / "with_audio.mp4"
+
+
+def _stabilize_estimated(src, folder, name: str) -> tuple:
+    """``fpv stabilize`` with the motion estimated from the pictures (no --motion) and the output
+    measured, with a report, JSON and the motion saved; returns the run, its JSON, and the output
+    and report paths."""
+    out, js, report = folder / f"{name}.mp4", folder / f"{name}.json", folder / f"{name}.html"
+    r = run_cli("fpv", "stabilize", src, "-o", out, "--report", report, "--json", js, "--save-motion", folder / name)
     assert r.returncode == 0, r.stderr
+    return r, json.loads(js.read_text()), out, report
+
+
+@pytest.fixture(scope="module")
+def estimated_run(small_clip, tmp_path_factory):
+    """One full run (_stabilize_estimated) that both tests below assert on: the first checks what
+    it wrote, the second that a second run gives the identical JSON."""
+    return _stabilize_estimated(small_clip, tmp_path_factory.mktemp("run"), "first")
+
+
+def test_stabilize_with_report_json_and_audio(tmp_path, small_clip, estimated_run):
+    src = small_clip
+    r, s, out, report = estimated_run
     assert count_frames(out) == count_frames(src)
     with av.open(str(out)) as c:
         assert len(c.streams.audio) == 1
-    s = json.loads((tmp_path / "r.json").read_text())
     # The motion source, asked and used, and why: in the JSON and on the console.
     assert s["motion_source"] == {"source": "vision", "requested": "auto", "reason": "the file records no gyro"}
     assert "motion    vision (the file records no gyro)" in r.stdout
@@ -35,20 +57,20 @@ def test_stabilize_with_report_json_and_audio(tmp_path, shaky_clip):
     assert s["params"]["visible"] and s["visible_cutoff_hz"] in (0.5, 1.0, 2.0, 4.0, None)
     assert s["planned"]["after"]["ve"] > s["planned"]["before"]["ve"]
     assert 1.0 <= s["zoom"]["mean"] <= s["zoom"]["max"] <= 1.10 + 1e-9
-    html = (tmp_path / "r.html").read_text()
+    html = report.read_text()
     assert "data:image/png;base64," in html and "ITF" in html and "input | output" in html
     # Same input, same options: the same JSON (plan, path and encoding are deterministic; timings
     # are not in it). Given the motion (the input motion the first run estimated and saved) and
     # without re-measuring, so that the motion estimator's own determinism is not what is tested here.
-    runs = []
+    runs, motion = [], report.with_name("first.input.csv")
     for k in range(2):
-        args = ("-o", tmp_path / f"d{k}.mp4", "--motion", tmp_path / "m.input.csv", "--json", tmp_path / f"d{k}.json")
+        args = ("-o", tmp_path / f"d{k}.mp4", "--motion", motion, "--json", tmp_path / f"d{k}.json")
         r = run_cli("fpv", "stabilize", src, *args, "--no-measure")
         assert r.returncode == 0, r.stderr
         runs.append(json.loads((tmp_path / f"d{k}.json").read_text()))
     assert {**runs[0], "output": None} == {**runs[1], "output": None}
     # The horizon lock and a smaller zoom budget, from the command line.
-    args = ("-o", tmp_path / "h.mp4", "--motion", tmp_path / "m.input.csv", "--json", tmp_path / "h.json")
+    args = ("-o", tmp_path / "h.mp4", "--motion", motion, "--json", tmp_path / "h.json")
     r = run_cli("fpv", "stabilize", src, *args, "--no-measure", "--horizon-lock", "--max-zoom", "1.05")
     assert r.returncode == 0, r.stderr
     h = json.loads((tmp_path / "h.json").read_text())
@@ -106,19 +128,15 @@ def test_stabilize_bad_input(tmp_path, still_clip, capsys):
     assert not out.exists()
 
 
-def test_same_input_gives_identical_json_on_the_estimated_path(tmp_path):
+def test_same_input_gives_identical_json_on_the_estimated_path(tmp_path, small_clip, estimated_run):
     # No --motion: the motion is estimated from the pictures (and re-estimated on the output to
-    # measure it), twice; every figure must come out identical, not merely close.
-    shaky_clip = tmp_path / "small.mp4"
-    angles = motions.running(60, 8.0, 2.0, 24.0, roll_amp=1.5) + motions.jitter(60, (0.1, 0.1, 0.1), seed=5)
-    render_fpv(shaky_clip, angles, width=320, height=180, noise_std=2.0, seed=5)
-    runs, scores = [], []
+    # measure it), twice (the first run is the module's, asserted on above); every figure must
+    # come out identical, not merely close.
+    runs, scores = [{**estimated_run[1], "output": None}], []
+    _, second, _, _ = _stabilize_estimated(small_clip, tmp_path, "second")
+    runs.append({**second, "output": None})
     for k in range(2):
-        out, js = tmp_path / f"s{k}.mp4", tmp_path / f"s{k}.json"
-        r = run_cli("fpv", "stabilize", shaky_clip, "-o", out, "--json", js)
-        assert r.returncode == 0, r.stderr
-        runs.append({**json.loads(js.read_text()), "output": None})
-        r = run_cli("fpv", "score", shaky_clip, "--json", tmp_path / f"score{k}.json")
+        r = run_cli("fpv", "score", small_clip, "--json", tmp_path / f"score{k}.json")
         assert r.returncode == 0, r.stderr
         scores.append(json.loads((tmp_path / f"score{k}.json").read_text()))
     assert "measured" in runs[0]

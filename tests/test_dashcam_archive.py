@@ -18,7 +18,7 @@ from egovid.dashcam.extract import extract_video
 from egovid.dashcam.ingest import IngestOptions, ingest_videos
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
-from conftest import _wait_for, assert_one_error, run_cli
+from conftest import _wait_for, assert_one_error, invoke_cli, run_cli
 
 W, H = 320, 180
 
@@ -148,13 +148,14 @@ def test_extract_in_a_fresh_process_is_bit_exact(archive, drives, tmp_path):
     assert 10 * np.log10(255**2 / mse) > 30.0
 
 
-def test_list_show_report(archive):
+def test_list_show_report(archive, capsys):
+    # Reading commands, in this process (a process start is not what is tested here).
     root, _ = archive
-    r = run_cli("dashcam", "list", root)
+    r = invoke_cli(["dashcam", "list", root], capsys)
     assert r.returncode == 0 and "joint" in r.stdout and "intra" in r.stdout
-    r = run_cli("dashcam", "show", root, "c")
+    r = invoke_cli(["dashcam", "show", root, "c"], capsys)
     assert r.returncode == 0 and "segment" in r.stdout
-    r = run_cli("dashcam", "report", root, "--json", root.parent / "rep.json")
+    r = invoke_cli(["dashcam", "report", root, "--json", root.parent / "rep.json"], capsys)
     assert r.returncode == 0, r.stderr
     rep = json.loads((root.parent / "rep.json").read_text())
     assert {d["drive"] for d in rep["drives"]} == {"a", "b", "c"}
@@ -177,9 +178,11 @@ def _state(root):
         db.close()
 
 
-def test_bad_input_changes_nothing(archive, drives, tmp_path):
+def test_bad_input_changes_nothing(archive, drives, tmp_path, capsys):
+    # Each command ends in validation (or a no-op), so in this process (see invoke_cli).
     root, _ = archive
     before = _state(root)
+    cli = lambda *args: invoke_cli(list(args), capsys)  # noqa: E731
     video_a, gps_a, _ = drives["a"]
     # GPS of another time: the same track shifted by a day does not overlap the video.
     shifted = tmp_path / "late.csv"
@@ -191,25 +194,25 @@ def test_bad_input_changes_nothing(archive, drives, tmp_path):
         t, rest = ln.split(",", 1)
         out.append((dt.datetime.fromisoformat(t) + dt.timedelta(days=1)).isoformat() + "," + rest)
     shifted.write_text("\n".join(out) + "\n")
-    assert_one_error(run_cli("dashcam", "ingest", root, video_a, "--gps", shifted, "--name", "x"), "covers 0%")
-    assert_one_error(run_cli("dashcam", "ingest", root, video_a, "--gps", video_a, "--name", "x"), "binary")
+    assert_one_error(cli("dashcam", "ingest", root, video_a, "--gps", shifted, "--name", "x"), "covers 0%")
+    assert_one_error(cli("dashcam", "ingest", root, video_a, "--gps", video_a, "--name", "x"), "binary")
     broken = tmp_path / "broken.mp4"
     broken.write_bytes(video_a.read_bytes()[:2000])
-    assert_one_error(run_cli("dashcam", "ingest", root, broken, "--gps", gps_a, "--name", "x"), "")
-    r = run_cli("dashcam", "ingest", root, video_a, "--gps", gps_a)  # the same file again: a no-op that says so
+    assert_one_error(cli("dashcam", "ingest", root, broken, "--gps", gps_a, "--name", "x"), "")
+    r = cli("dashcam", "ingest", root, video_a, "--gps", gps_a)  # the same file again: a no-op that says so
     assert r.returncode == 0 and "1 file(s) already archived" in r.stdout, r.stdout + r.stderr
-    assert_one_error(run_cli("dashcam", "extract", root, "nobody", "-o", tmp_path / "x.mkv"), "no drive")
-    assert_one_error(run_cli("dashcam", "ingest", tmp_path, video_a, "--gps", gps_a), "not an egovid archive")
+    assert_one_error(cli("dashcam", "extract", root, "nobody", "-o", tmp_path / "x.mkv"), "no drive")
+    assert_one_error(cli("dashcam", "ingest", tmp_path, video_a, "--gps", gps_a), "not an egovid archive")
     args = ("dashcam", "ingest", root, video_a, "--gps", gps_a, "--name", "x", "--random-access", 1)
-    assert_one_error(run_cli(*args), "random-access period 1")
+    assert_one_error(cli(*args), "random-access period 1")
     assert _state(root) == before
     # A GPS log of NaNs into a new archive: refused, and the archive keeps no origin (it used to
     # record a NaN origin that broke every later ingest).
     fresh = tmp_path / "fresh"
-    assert run_cli("dashcam", "init", fresh).returncode == 0
+    assert cli("dashcam", "init", fresh).returncode == 0
     nan = tmp_path / "nan.csv"
     nan.write_text("time,lat,lon\n" + "".join(f"{1777881600 + i},nan,nan\n" for i in range(30)))
-    assert_one_error(run_cli("dashcam", "ingest", fresh, video_a, "--gps", nan), "0 valid GPS fix")
+    assert_one_error(cli("dashcam", "ingest", fresh, video_a, "--gps", nan), "0 valid GPS fix")
     assert Archive(fresh).origin is None and _state(fresh) == [0, 0, 0, 0]
     assert "nan" not in (fresh / "egovid-archive.json").read_text().lower()
 
@@ -276,7 +279,7 @@ def test_kill_during_ingest_leaves_archive_consistent(archive, drives, tmp_path)
     assert rep.pieces[0].mode == "joint"
 
 
-def test_postgresql_catalogue(archive, drives, pg_url, tmp_path):
+def test_postgresql_catalogue(archive, drives, pg_url, tmp_path, capsys):
     """The same archive with its catalogue in PostgreSQL: the same bitstreams as with SQLite,
     extract in a fresh process is bit-exact, a killed ingest changes nothing, a bad URL is refused
     before anything is created."""
@@ -306,11 +309,11 @@ def test_postgresql_catalogue(archive, drives, pg_url, tmp_path):
     _kill_mid_ingest(root, *drives["c"][:2])
     assert _state(root) == [2, 1, 2, 2]
     _collect_the_killed_ingests_blobs(root)
-    r = run_cli("dashcam", "list", root)
+    r = invoke_cli(["dashcam", "list", root], capsys)
     assert r.returncode == 0 and "killed" not in r.stdout
     # A server that is not there, or a database kind egovid does not know: one error, no folder.
     host = pg_url.split("host=")[1].split("&")[0]
     bad = pg_url.replace(host, str(tmp_path / "nowhere"))
-    assert_one_error(run_cli("dashcam", "init", tmp_path / "x", "--db", bad), "cannot connect")
-    assert_one_error(run_cli("dashcam", "init", tmp_path / "y", "--db", "mysql://db/x"), "not understood")
+    assert_one_error(invoke_cli(["dashcam", "init", tmp_path / "x", "--db", bad], capsys), "cannot connect")
+    assert_one_error(invoke_cli(["dashcam", "init", tmp_path / "y", "--db", "mysql://db/x"], capsys), "not understood")
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()

@@ -27,7 +27,7 @@ from egovid.dashcam.codec import segment as codec
 from egovid.dashcam.report import list_drives
 from egovid.synth.drive import DriveSpec, Light, render_drive
 
-from conftest import assert_one_error, run_cli
+from conftest import assert_one_error, invoke_cli, run_cli
 
 W, H, FPS = 160, 96, 10.0
 DAY = dt.datetime(2026, 7, 1, 9, 0, 0, tzinfo=dt.UTC)
@@ -109,10 +109,12 @@ def _closest(frame: np.ndarray, sources: list[np.ndarray]) -> int:
     return int(np.argmin([np.mean((y - s[:H].astype(np.float32)) ** 2) for s in sources]))
 
 
-def test_a_front_and_rear_pair_is_one_drive_with_two_channels(pair):
+def test_a_front_and_rear_pair_is_one_drive_with_two_channels(pair, capsys):
+    # The reading commands and refusals run in this process (see invoke_cli).
+    cli = lambda *args: invoke_cli(list(args), capsys)  # noqa: E731
     root, days = pair["root"], pair["days"]
     page = pair["dir"] / "map.html"
-    r = run_cli("dashcam", "report", root, "--json", pair["dir"] / "report.json", "--html", page)
+    r = cli("dashcam", "report", root, "--json", pair["dir"] / "report.json", "--html", page)
     assert r.returncode == 0 and "map of 2 drive(s)" in r.stdout, r.stdout + r.stderr
     assert page.read_text().count('"cameras":"front (main), rear (') == 2
     rep = {x["drive"]: x for x in json.loads((pair["dir"] / "report.json").read_text())["drives"]}
@@ -152,7 +154,7 @@ def test_a_front_and_rear_pair_is_one_drive_with_two_channels(pair):
     # The rear drive holds both loop files, the gap between them kept in its frame times.
     frames = {x[1]: x[9] for x in rows["drives"]}
     assert frames[f"{second}~rear"] == frames[second] - (GAP[1] - GAP[0]) == len(days[1]["front"]) - 20
-    r = run_cli("dashcam", "check", root, "--deep")
+    r = cli("dashcam", "check", root, "--deep")
     assert r.returncode == 0 and "4 drive(s)" in r.stdout, r.stdout + r.stderr
 
 
@@ -205,16 +207,18 @@ def test_channel_all_writes_every_camera_in_sync(pair, tmp_path):
     assert max(abs(_closest(a, day["front"]) - _closest(b, day["rear"])) for a, b in zip(cf, cr, strict=True)) <= 1
 
 
-def test_an_unknown_channel_is_an_error_naming_the_cameras(pair, tmp_path):
+def test_an_unknown_channel_is_an_error_naming_the_cameras(pair, tmp_path, capsys):
+    # The reading commands and refusals run in this process (see invoke_cli).
+    cli = lambda *args: invoke_cli(list(args), capsys)  # noqa: E731
     root, day = pair["root"], pair["days"][0]
     before = _rows(root)
-    r = run_cli("dashcam", "extract", root, day["name"], "--channel", "interior", "-o", tmp_path / "x.mkv")
+    r = cli("dashcam", "extract", root, day["name"], "--channel", "interior", "-o", tmp_path / "x.mkv")
     assert_one_error(r, "no channel 'interior'")
     assert "front, rear" in r.stderr
     moment = (DAY + dt.timedelta(seconds=3)).isoformat()
-    r = run_cli("dashcam", "clip", root, "--at", moment, "--channel", "side", "-o", tmp_path / "c.mp4")
+    r = cli("dashcam", "clip", root, "--at", moment, "--channel", "side", "-o", tmp_path / "c.mp4")
     assert_one_error(r, "no channel 'side'")
-    assert_one_error(run_cli("dashcam", "extract", root, f"{day['name']}~rear", "-o", tmp_path / "y.mkv"), "no drive")
+    assert_one_error(cli("dashcam", "extract", root, f"{day['name']}~rear", "-o", tmp_path / "y.mkv"), "no drive")
     assert list(tmp_path.iterdir()) == [] and _rows(root) == before
 
 
@@ -229,7 +233,9 @@ def test_the_pair_again_is_a_no_op(pair, tmp_path):
     assert _rows(root) == before
 
 
-def test_forget_takes_the_cameras_with_their_drive(pair, tmp_path):
+def test_forget_takes_the_cameras_with_their_drive(pair, tmp_path, capsys):
+    # The reading commands and refusals run in this process (see invoke_cli).
+    cli = lambda *args: invoke_cli(list(args), capsys)  # noqa: E731
     root = tmp_path / "copy"
     shutil.copytree(pair["root"], root)
     second = pair["days"][1]["name"]
@@ -238,13 +244,15 @@ def test_forget_takes_the_cameras_with_their_drive(pair, tmp_path):
     rows = _rows(root)
     assert {x[1] for x in rows["drives"]} == {pair["days"][0]["name"], f"{pair['days'][0]['name']}~rear"}
     assert len(rows["drive_channels"]) == 1
-    assert run_cli("dashcam", "check", root).returncode == 0
+    assert cli("dashcam", "check", root).returncode == 0
 
 
-def test_a_camera_comes_later_and_a_rear_loop_file_continues_its_channel(pair, tmp_path):
+def test_a_camera_comes_later_and_a_rear_loop_file_continues_its_channel(pair, tmp_path, capsys):
     """As after a kill between a drive's commit and its camera's: the front file archived alone,
     then the card again adds the rear camera to that drive. And a rear loop file synced later
     continues the rear channel (appended), not a drive of its own."""
+    # The reading commands and refusals run in this process (see invoke_cli).
+    cli = lambda *args: invoke_cli(list(args), capsys)  # noqa: E731
     root = tmp_path / "archive"
     assert run_cli("dashcam", "init", root).returncode == 0
     one, two = pair["days"]
@@ -270,7 +278,7 @@ def test_a_camera_comes_later_and_a_rear_loop_file_continues_its_channel(pair, t
     assert r.returncode == 0, r.stderr
     got = _frames(out)
     assert [_closest(f, two["rear"]) for f in got[:3]] == [50, 51, 52]  # after the gap, by its time
-    assert run_cli("dashcam", "check", root).returncode == 0
+    assert cli("dashcam", "check", root).returncode == 0
 
 
 def _held(lock: Path) -> bool:

@@ -22,7 +22,7 @@ from egovid.dashcam.archive.store import Archive
 from egovid.dashcam.readings import read_csv, write_csv
 from egovid.synth.tesla import drive_samples, write_tesla_clip
 
-from conftest import assert_one_error, run_cli
+from conftest import assert_one_error, invoke_cli, run_cli
 
 FPS, SECONDS, N = 36.0, 2.0, 72
 START = dt.datetime(2025, 11, 20, 14, 3, 12)
@@ -140,7 +140,9 @@ def test_tesla_drive_keeps_its_readings_exactly(tesla_archive):
     _assert_same_values(got, _truth(3))
 
 
-def test_extract_writes_the_readings_as_csv(tesla_archive, tmp_path):
+def test_extract_writes_the_readings_as_csv(tesla_archive, tmp_path, capsys):
+    # The refusals end in validation, so in this process (see invoke_cli).
+    cli = lambda *args: invoke_cli(list(args), capsys)  # noqa: E731
     root, name = tesla_archive["root"], tesla_archive["name"]
     out = tmp_path / "all.csv"
     r = run_cli("dashcam", "extract", root, name, "--readings", out)  # readings only: no video decoded
@@ -153,8 +155,8 @@ def test_extract_writes_the_readings_as_csv(tesla_archive, tmp_path):
     assert r.returncode == 0, r.stderr
     assert video.stat().st_size > 0
     _assert_same_values(read_csv(part), _truth(3).between(1.0 - 1e-9, 3.0 - 1e-9))
-    assert_one_error(run_cli("dashcam", "extract", root, name), "nothing to write")
-    assert_one_error(run_cli("dashcam", "extract", root, name, "--readings", tmp_path / "x.txt"), ".csv")
+    assert_one_error(cli("dashcam", "extract", root, name), "nothing to write")
+    assert_one_error(cli("dashcam", "extract", root, name, "--readings", tmp_path / "x.txt"), ".csv")
 
 
 def test_report_summarises_and_draws_the_readings(tesla_archive, tmp_path):
@@ -217,7 +219,9 @@ def test_forget_drops_and_backup_carries_the_readings(tesla_archive, tmp_path):
         ar.close()
 
 
-def test_an_archive_without_readings_is_read_as_it_is(tmp_path):
+def test_an_archive_without_readings_is_read_as_it_is(tmp_path, capsys):
+    # The refusals end in validation, so in this process (see invoke_cli).
+    cli = lambda *args: invoke_cli(list(args), capsys)  # noqa: E731
     """tests/data/archive-vp9-v1 (made before readings existed): report and extract work, say
     nothing of readings, and write nothing to its catalogue."""
     root = tmp_path / "old"
@@ -228,7 +232,7 @@ def test_an_archive_without_readings_is_read_as_it_is(tmp_path):
     assert r.returncode == 0, r.stderr
     assert [d["readings"] for d in json.loads(rep.read_text())["drives"]] == [None, None]
     assert "no drive has recorded readings" in r.stdout and not (tmp_path / "figs").exists()
-    assert_one_error(run_cli("dashcam", "extract", root, "a", "--readings", tmp_path / "a.csv"), "no recorded readings")
+    assert_one_error(cli("dashcam", "extract", root, "a", "--readings", tmp_path / "a.csv"), "no recorded readings")
     assert (root / "catalogue.sqlite").read_bytes() == before
     ar = Archive(root)
     try:

@@ -65,7 +65,9 @@ def test_verdict_needs_shake_and_measured_steps():
 
 
 # ------------------------------------------------------------------------------------------
-# Rendered clips: the picture's motion is known, the gyro is made from it.
+# Rendered clips: the picture's motion is known, the gyro is made from it. Every call of
+# camera_motion on the clip measures the same frame pairs (the gyro differs, not the pictures):
+# shared_vision_pairs measures them once for the module.
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +120,7 @@ def _band_share_truth(truth, extra_yaw: np.ndarray) -> float:
     return p_pic / (p_pic + p_shake)
 
 
-def test_gyro_that_turns_with_the_picture_is_kept(bob_clip, monkeypatch):
+def test_gyro_that_turns_with_the_picture_is_kept(bob_clip, monkeypatch, shared_vision_pairs):
     clip, truth = bob_clip
     monkeypatch.setattr(source_mod, "read_camera_telemetry", lambda path: _telemetry(truth))
     cm = source_mod.camera_motion(clip, "auto")
@@ -130,7 +132,7 @@ def test_gyro_that_turns_with_the_picture_is_kept(bob_clip, monkeypatch):
     assert cm.to_dict()["picture_vs_body_gyro"]["verdict"] == eis.KEPT
 
 
-def test_gyro_with_shake_the_picture_lacks_is_set_aside(bob_clip, monkeypatch):
+def test_gyro_with_shake_the_picture_lacks_is_set_aside(bob_clip, monkeypatch, shared_vision_pairs):
     """A camera that stabilised the picture and lost the tag: its body gyro carries an 11 deg/s
     shake the picture does not have. ``auto`` must not use the gyro; with the picture's
     orientation recorded it uses that, else vision."""
@@ -173,7 +175,7 @@ def test_gyro_with_shake_the_picture_lacks_is_set_aside(bob_clip, monkeypatch):
 
 def test_real_handheld_gopro_keeps_its_gyro():
     """HERO6 handheld, no EIS tag in the file. (The HERO5 on its gimbal, with too little shake to
-    tell, is checked by tests/test_cli_motion.py on its JSON.)"""
+    tell, is checked by tests/test_cli_real_clips.py on its JSON.)"""
     cm = source_mod.camera_motion(real_clip("gopro-hero6-2s.mp4"), "auto")
     assert cm.source == "gyro", cm.reason
     assert cm.picture_share.verdict == eis.KEPT, cm.picture_share

@@ -461,19 +461,21 @@ def test_find_clip_lock_forget(serve_archive, tmp_path):
         assert after.status_code == 200 and after.content == before  # decodes as before, through the reference
 
 
-def test_serve_cli_refuses_bad_input(serve_archive, tmp_path):
-    from conftest import assert_one_error
+def test_serve_cli_refuses_bad_input(serve_archive, tmp_path, capsys):
+    # Each is refused before serving, so in this process (see invoke_cli).
+    from conftest import assert_one_error, invoke_cli
 
-    assert_one_error(run_cli("serve", tmp_path / "nothing"), "not found")
-    assert_one_error(run_cli("serve", tmp_path), "not an egovid archive")
-    assert_one_error(run_cli("serve", serve_archive, "--token", "short"), "16 characters")
-    assert_one_error(run_cli("serve", serve_archive, "--fpv", tmp_path / "none"), "report folder")
+    cli = lambda *args: invoke_cli(list(args), capsys)  # noqa: E731
+    assert_one_error(cli("serve", tmp_path / "nothing"), "not found")
+    assert_one_error(cli("serve", tmp_path), "not an egovid archive")
+    assert_one_error(cli("serve", serve_archive, "--token", "short"), "16 characters")
+    assert_one_error(cli("serve", serve_archive, "--fpv", tmp_path / "none"), "report folder")
     # (absurd ports, foreign addresses, bad --tiles: tests/test_fuzz_cli.py, in process)
     with socket.socket() as taken:  # a port another program listens on
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        assert_one_error(run_cli("serve", serve_archive, "--port", port), f"cannot listen on 127.0.0.1:{port}")
+        assert_one_error(cli("serve", serve_archive, "--port", port), f"cannot listen on 127.0.0.1:{port}")
 
 
 def test_an_archive_on_postgresql_serves_the_same(serve_archive, pg_url, tmp_path):

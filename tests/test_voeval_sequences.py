@@ -21,7 +21,7 @@ from egovid.core.trajectory import Trajectory, read_tum, write_tum
 from egovid.core.video import iter_frames
 from egovid.voeval.sequences import longest_run, match_reference, parse_specs
 
-from conftest import assert_one_error, real_clip, run_cli
+from conftest import assert_one_error, invoke_cli, real_clip, run_cli
 
 N, W, H, FPS = 14, 160, 120, 20.0
 T0 = 1305031102.175  # a TUM-like epoch: times are absolute seconds in the datasets
@@ -241,15 +241,17 @@ def test_match_reference_interpolates_and_refuses_gaps():
     assert longest_run(ok) == (1, 3) and longest_run(np.zeros(3, bool)) == (0, 0)
 
 
-def test_bad_sequences_are_one_clear_error(tmp_path):
+def test_bad_sequences_are_one_clear_error(tmp_path, capsys):
+    # Each fails in validation, so in this process (see invoke_cli).
     (tmp_path / "empty").mkdir()
     base = ["voeval", "run", "--out", tmp_path / "r", "--no-synthetic", "--vo", "ecc"]
-    assert_one_error(run_cli(*base, "--sequence", "tumx:/nowhere"), "known format")
-    assert_one_error(run_cli(*base, "--sequence", f"tum:{tmp_path / 'missing'}"), "does not exist")
-    assert_one_error(run_cli(*base, "--sequence", f"euroc:{tmp_path / 'empty'}"), "cam0/data.csv")
-    assert_one_error(run_cli(*base, "--sequence", f"gyro:{tmp_path / 'empty'}"), "not a video file")
+    cli = lambda *args: invoke_cli(list(args), capsys)  # noqa: E731
+    assert_one_error(cli(*base, "--sequence", "tumx:/nowhere"), "known format")
+    assert_one_error(cli(*base, "--sequence", f"tum:{tmp_path / 'missing'}"), "does not exist")
+    assert_one_error(cli(*base, "--sequence", f"euroc:{tmp_path / 'empty'}"), "cam0/data.csv")
+    assert_one_error(cli(*base, "--sequence", f"gyro:{tmp_path / 'empty'}"), "not a video file")
     no_gyro = real_clip("handheld-1080p-pan.mp4")  # a real phone clip without telemetry
-    assert_one_error(run_cli(*base, "--sequence", f"gyro:{no_gyro}"), "no embedded gyro")
+    assert_one_error(cli(*base, "--sequence", f"gyro:{no_gyro}"), "no embedded gyro")
     assert not (tmp_path / "r").exists()  # every --sequence is checked before the run folder is made
     with pytest.raises(EgovidError, match="freiburg"):
         from egovid.voeval.datasets import read_tum

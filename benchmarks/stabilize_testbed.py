@@ -21,7 +21,7 @@ Measured on each decoded output the same way:
   (``estimate_motion``, scored by ``motion_scores``; 2D-VE and ITF are not needed here);
   FPMI kept = (1 - pure-FPM VE after) / (1 - pure-FPM VE before) against the input as measured,
   and against the truth's intended motion
-  (``fpmi_vs_truth``; n/a where the intended motion carries almost none: 1 - VE < 0.05);
+  (``fpmi_vs_truth``; n/a where the intended motion carries almost none: 1 - VE < ``FPMI_NONE``, 0.05);
 * **truth ceiling**: the jitter shake.py's formula gives the intended motion itself (from the
   truth angles, small-angle image path): what "keep the intended motion exactly" costs.
 
@@ -44,7 +44,7 @@ import numpy as np
 from egovid.core.motion.estimate import estimate_motion
 from egovid.core.motion.source import camera_motion
 from egovid.fpv.stabilize.gyroflow_peer import plan_gyroflow, run_gyroflow
-from egovid.fpv.stabilize.measure import motion_scores
+from egovid.fpv.stabilize.measure import FPMI_NONE, motion_scores
 from egovid.fpv.stabilize.run import stabilize_video
 from egovid.fpv.stabilize.vidstab import run_vidstab
 from egovid.synth.testbed import CaseTruth, default_cases, render_case
@@ -130,7 +130,7 @@ def bench_case(case, folder: Path, use_gyro: bool) -> dict:
     for name, out in outs.items():
         m = scores_of(out, intr, case.fps)
         d = shake(src, out)
-        fv = _fpmi(intended.pure_fpm_ve, m.pure_fpm_ve) if 1 - intended.pure_fpm_ve >= 0.05 else None
+        fv = _fpmi(intended.pure_fpm_ve, m.pure_fpm_ve) if 1 - intended.pure_fpm_ve >= FPMI_NONE else None
         row[name] = {
             **d,
             "ve": round(m.ve, 4),

@@ -38,6 +38,14 @@ def pure_motion(angles: np.ndarray, threshold: float = 0.5) -> np.ndarray:
     return out
 
 
+#: FPMI (1 - VE of the pure FPM) below which a motion carries no first-person motion worth
+#: keeping (its anchors' turn-backs are too small or too few to be seen): the plans of the test
+#: bed's drives and steady pans score 0.001-0.015, a hand-held pan's 0.27. Below it the share of
+#: FPMI a path keeps is a ratio of two near-zero scores (0.17-5.9 on those drives and pans), not a
+#: measure, so nothing there can be lost. Also the benchmarks' "n/a" for an intended motion.
+FPMI_NONE = 0.05
+
+
 @dataclass
 class MotionScores:
     """Scores of a camera motion: VE, SVE and the VE of its pure FPM (lower = more first-person

@@ -12,7 +12,11 @@ lowest cutoff whose fitted path still keeps ``fpmi_floor`` of the plan's own FPM
 its pure FPM, measured by the scores' rule at the model's rate): a plan whose FPMI is a slow look around, a pan
 or a turn is smoothed at 0.5 Hz and loses nothing a viewer would call intended; a plan whose FPMI
 is a running bob keeps the bob (lowering the cutoff would take it away) and only what lies above
-the bob's band goes. The FPMI a path keeps grows with the cutoff, give or take a percent (the
+the bob's band goes. A plan with no FPMI worth keeping (under
+:data:`~egovid.fpv.stabilize.measure.FPMI_NONE`: a drive, a steady pan) keeps it at any cutoff,
+so it is smoothed at the lowest (the share of a near-zero FPMI is noise: a shaky drive once fell
+back to its plan at 0.48 of 0.0009 and kept 7 × the shake; the check against the input's FPMI
+below is unchanged). The FPMI a path keeps grows with the cutoff, give or take a percent (the
 low-passed plan nears the plan), so the lowest cutoff is fitted first (a slow plan keeps its
 FPMI there: one fit), then the highest; only when the highest keeps the floor are the ones
 between fitted, lowest first, and the lowest that keeps it chosen, as fitting every cutoff in
@@ -47,7 +51,7 @@ import numpy as np
 
 from egovid.core.camera.intrinsics import Intrinsics
 from egovid.fpv.perception.model import ViewingModel
-from egovid.fpv.stabilize.measure import motion_scores, pure_motion
+from egovid.fpv.stabilize.measure import FPMI_NONE, motion_scores, pure_motion
 from egovid.fpv.stabilize.path import FittedPath, PathWeights, fit_path
 
 #: Cutoffs tried (Hz), lowest first (at least two: the lowest and the highest are fitted first).
@@ -116,15 +120,15 @@ def visible_path(
     def fpmi(a: np.ndarray) -> float:
         return 1.0 - motion_scores(a, fps, intr, **kw).pure_fpm_ve
 
-    def share(a: np.ndarray, base: float) -> float:
-        return fpmi(a) / base if base > 1e-6 else 1.0
+    def share(a: np.ndarray, base: float, least: float = 1e-6) -> float:
+        return fpmi(a) / base if base >= least else 1.0
 
     base, base_in = fpmi(plan), fpmi(original)
 
     def attempt(hz: float) -> tuple[FittedPath, VisibleTarget]:
         target = low_pass(plan, fps, hz)
         fitted = fit_path(original, target, intr, fps, max_zoom=max_zoom, weights=w)
-        return fitted, VisibleTarget(target, hz, float(share(fitted.path, base)))
+        return fitted, VisibleTarget(target, hz, float(share(fitted.path, base, FPMI_NONE)))
 
     def keeps(c: tuple[FittedPath, VisibleTarget]) -> bool:
         return c[1].fpmi_kept >= fpmi_floor
@@ -137,7 +141,7 @@ def visible_path(
         chosen = next(filter(keeps, map(attempt, middle)), chosen) if keeps(chosen) else None
     if chosen is None:
         fitted = fit_path(original, plan, intr, fps, max_zoom=max_zoom, weights=w)
-        chosen = fitted, VisibleTarget(np.asarray(plan, float).copy(), None, float(share(fitted.path, base)))
+        chosen = fitted, VisibleTarget(np.asarray(plan, float).copy(), None, float(share(fitted.path, base, FPMI_NONE)))
     chosen[1].fpmi_kept_input = kept_in = float(share(chosen[0].path, base_in))
     if kept_in >= fpmi_floor + FPMI_MARGIN:
         return chosen
@@ -151,5 +155,5 @@ def visible_path(
                 f"the plan kept {100 * share(plan, base_in):.0f} % of the input's first-person motion: its anchors' "
                 f"amplitude given back below {hz:g} Hz ({100 * kept_in:.0f} % kept)"
             )
-            return fitted, VisibleTarget(target, hz, float(share(fitted.path, base)), float(kept_in), True)
+            return fitted, VisibleTarget(target, hz, float(share(fitted.path, base, FPMI_NONE)), float(kept_in), True)
     return chosen

@@ -56,6 +56,9 @@ lint: $(STAMP)
 # out of the test workers (voeval's grid test 515 s -> 43 s, the EIS test 278 s -> 30 s). 839 tests:
 # 19.0 min of pytest, 20.7 min for make test from a clean clone with ../shared at load 3.5-4.6
 # (2026-12-08), after the stabiliser's interrupt tests moved to their own file on a short job.
+# 842 tests: 13.8 min of pytest, 15.5 min for make test (clean clone with ../shared, alone, load
+# 0.8-4.3, 2026-12-08 03:14-03:30), after the real-clip motion runs were shared within one module
+# and the refusal and read-only commands ran in process.
 # --durations names the slowest, so a CI log says where the time went. The whole run is
 # interrupted after 70 minutes (pytest then prints what it has, stacks and summary) so that a hang
 # shows in the log instead of running into CI's 90-minute limit with nothing printed.

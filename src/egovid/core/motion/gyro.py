@@ -263,7 +263,6 @@ def sync_gyro(
     scores = np.array([speed_score(d) for d in coarse])
     best = float(coarse[int(np.argmax(scores))])
     offset, _ = _peak(speed_score, np.arange(best - 0.01, best + 0.01 + 1e-9, FINE_STEP_S))
-    r_speed = speed_score(offset)
     g = track.mean_rates(t0 + offset, t1 + offset)
     # Axis mapping from the intervals with real motion.
     strong = wts * (np.linalg.norm(g, axis=1) > np.percentile(np.linalg.norm(g, axis=1), 30))

@@ -519,11 +519,18 @@ def _choose_lens(run: _Run) -> None:
         f"{fit.scale:.3f} on {fit.pairs} frame pairs" + (f"; other lenses {others}" if others else "") + ")",
     )
     run.pairs = pairs
+    _resolve_and_resync(run, run.camera)
+
+
+def _resolve_and_resync(run: _Run, camera: CameraModel) -> None:
+    """Vision solved again from ``run.pairs`` through ``camera``, the sensor synced to it again
+    and, for a gyro, integrated again with the new sync's bias."""
     run.vision = solve_motion(
-        run.pairs, run.camera.intrinsics, calibrate=run.vopts.calibrate, detail_hz=run.vopts.detail_hz
+        run.pairs, camera.intrinsics, calibrate=run.vopts.calibrate, detail_hz=run.vopts.detail_hz
     )
-    run.sync = _sync(run.gyro_track, run.vision, False)
-    run.track = gyro_mod.integrate(run.telemetry.imu, bias=run.sync.bias)
+    run.sync = _sync(run.gyro_track, run.vision, run.source.orientation)
+    if not run.source.orientation:
+        run.track = gyro_mod.integrate(run.telemetry.imu, bias=run.sync.bias)
 
 
 def _fit_focal(run: _Run) -> None:
@@ -554,12 +561,7 @@ def _fit_focal(run: _Run) -> None:
         else:
             run.pairs = None
             break
-        run.vision = solve_motion(
-            run.pairs, camera.intrinsics, calibrate=run.vopts.calibrate, detail_hz=run.vopts.detail_hz
-        )
-        run.sync = _sync(run.gyro_track, run.vision, run.source.orientation)
-        if not run.source.orientation:
-            run.track = gyro_mod.integrate(run.telemetry.imu, bias=run.sync.bias)
+        _resolve_and_resync(run, camera)
     if run.fit is not None and run.fit.well_posed:
         run.fit = replace(run.fit, focal_px=camera.intrinsics.focal)
         if camera is before:

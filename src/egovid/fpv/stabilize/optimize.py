@@ -24,8 +24,10 @@ the model's 30 fps (the caller resamples; :func:`egovid.fpv.stabilize.pipeline.p
 
 from __future__ import annotations
 
+import contextlib
 import math
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -274,6 +276,19 @@ def load_kernels() -> None:
     theta = np.linspace(0.0, 1.0, 16)
     am = AxisModel(theta, "yaw", 90.0, 60.0, ViewingModel(), OptimizeOptions())
     am.objective(np.zeros(len(am.anchors)))
+
+
+@contextlib.contextmanager
+def kernels_loading() -> Iterator[None]:
+    """:func:`load_kernels` on a thread while the block runs (the motion stage leaves the
+    interpreter free most of the time: OpenCV, FFmpeg and the compiled fits run without the GIL);
+    joined when the block ends, so that no thread holds a lock when the planner forks."""
+    loader = threading.Thread(target=load_kernels, name="load-planner", daemon=True)
+    loader.start()
+    try:
+        yield
+    finally:
+        loader.join()
 
 
 def optimize_axis(

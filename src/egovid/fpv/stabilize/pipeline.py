@@ -25,7 +25,6 @@ runs it through :func:`egovid.fpv.stabilize.run.stabilize_video`, which resolves
 from __future__ import annotations
 
 import os
-import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
@@ -48,7 +47,7 @@ from egovid.fpv.perception.model import ViewingModel, from_model_rate, to_model_
 from egovid.fpv.perception.score import AXES, check_angles
 from egovid.fpv.stabilize.horizon import down_from_path, lock_horizon
 from egovid.fpv.stabilize.measure import MotionScores, VideoMeasures, measure_video, motion_scores
-from egovid.fpv.stabilize.optimize import AxisPlan, OptimizeOptions, load_kernels, optimize_axis
+from egovid.fpv.stabilize.optimize import AxisPlan, OptimizeOptions, kernels_loading, load_kernels, optimize_axis
 from egovid.fpv.stabilize.path import FittedPath, fit_path
 from egovid.fpv.stabilize.render import (
     BORDERS,
@@ -570,13 +569,8 @@ def _params(
 
 def _estimate(src: str | os.PathLike, intr: Intrinsics, progress: Callable[[int, int], None] | None) -> Trajectory:
     """The camera motion of ``src`` from its pictures, while the planner's kernels load."""
-    # The planner's compiled objective takes ~0.5 s to load; the motion stage leaves the
-    # interpreter free most of the time (OpenCV and compiled fits run without the GIL).
-    loader = threading.Thread(target=load_kernels, name="load-planner", daemon=True)
-    loader.start()
-    motion = estimate_motion(src, intr, progress=progress).trajectory
-    loader.join()  # done long before; no thread may hold a lock when the planner forks
-    return motion
+    with kernels_loading():
+        return estimate_motion(src, intr, progress=progress).trajectory
 
 
 def _stage(progress: Callable[[str, int, int], None] | None, stage: str) -> Callable[[int, int], None] | None:

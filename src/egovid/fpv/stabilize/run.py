@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -21,7 +20,7 @@ from egovid.core.motion.source import CameraMotion, camera_motion
 from egovid.core.trajectory import Trajectory, read_motion_csv, write_motion_csv
 from egovid.core.video import count_frames, probe
 from egovid.fpv.stabilize.horizon import down_from_accelerometer
-from egovid.fpv.stabilize.optimize import OptimizeOptions, load_kernels
+from egovid.fpv.stabilize.optimize import OptimizeOptions, kernels_loading
 from egovid.fpv.stabilize.pipeline import StabilizeResult, check_options, stabilize
 from egovid.fpv.stabilize.report import write_report
 
@@ -81,14 +80,8 @@ def stabilize_video(
     traj = motion if isinstance(motion, Trajectory) or motion is None else _motion_of(src, motion)
     cm = None
     if traj is None:  # the motion source resolves the camera itself (one ExifTool run per job)
-        # The planner's compiled objective takes ~0.5 s to load; the motion stage leaves the
-        # interpreter free most of the time (OpenCV, FFmpeg and compiled fits run without the GIL).
-        loader = threading.Thread(target=load_kernels, name="load-planner", daemon=True)
-        loader.start()
-        try:
+        with kernels_loading():  # the planner's compiled objective, ~0.5 s, beside the motion stage
             cm = camera_motion(src, source, focal=focal, hfov=hfov, progress=progress)
-        finally:
-            loader.join()  # no thread may hold a lock when the planner forks
         traj, camera = cm.trajectory, cm.camera
     else:
         camera = resolve_camera(src, focal, hfov)
